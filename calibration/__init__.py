@@ -1,0 +1,1 @@
+"""Calibration of rheological parameters (fitting, sensitivity, uncertainty)."""

@@ -1,0 +1,41 @@
+"""mpmjax: a differentiable Material Point Method for thixotropic mine tailings, in JAX.
+
+Public API (modules are private; names are re-exported here):
+
+* scenes: ``load_scene``, ``build``, ``builtin_scenes``, ``SceneError``, ``SCHEMA``
+* the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``
+* time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``
+* rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
+  parameter NamedTuples
+* observables: ``runout``
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params
+from ._observables import runout
+from ._rheology import (
+    Bingham,
+    BinghamParams,
+    Coussot,
+    CoussotParams,
+    HerschelBulkley,
+    HerschelBulkleyParams,
+    Newtonian,
+    NewtonianParams,
+)
+from ._scene import Gate, Params, Scene, State, Wall, init_state
+from ._simulate import Frame, make_advance, make_chunk, run, simulate
+from ._step import make_p2g, make_step, tait_pressure
+
+try:
+    __version__ = version("mpmjax")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    __version__ = "0.1.0.dev0"
+
+__all__ = [
+    "SCHEMA", "SceneError", "Setup", "build", "builtin_scenes", "load_scene", "make_params", "runout",
+    "Bingham", "BinghamParams", "Coussot", "CoussotParams", "HerschelBulkley", "HerschelBulkleyParams",
+    "Newtonian", "NewtonianParams", "Gate", "Params", "Scene", "State", "Wall", "init_state",
+    "Frame", "make_advance", "make_chunk", "run", "simulate", "make_p2g", "make_step", "tait_pressure",
+]

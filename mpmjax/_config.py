@@ -1,0 +1,463 @@
+"""Scene files: TOML with documented keys in SI units, validation, and building a run.
+
+A scene file is a TOML document whose keys are listed in ``SCHEMA`` (each with its
+unit, default, allowed range and meaning; ``mpmjax scenes --keys`` prints them and
+docs/scenes.md is generated from them).  ``load_scene(name_or_path, overrides)``
+returns a validated nested dict; ``build(cfg)`` turns it into a static ``Scene``,
+traced ``Params`` and the initial ``State``.
+
+Errors are ``SceneError`` (a ``ValueError``) naming the key, the value and the
+allowed range.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from . import _rheology, _shapes
+from ._scene import FACE_KINDS, WALL_KINDS, Gate, Params, Scene, Wall, ghost_cells, init_state
+
+
+class SceneError(ValueError):
+    """Invalid scene input; the message names the key, the value and the allowed range."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Key:
+    type: Any  # float, int, str, bool, "vec" (list of floats of length dim), "table-list"
+    default: Any
+    unit: str
+    doc: str
+    lo: float | None = None  # inclusive lower bound
+    lo_open: bool = False  # True: value must be > lo
+    hi: float | None = None
+    choices: tuple | None = None
+
+
+_REQ = object()  # marker: required
+
+SCHEMA: dict[str, Key] = {
+    "name": Key(str, "unnamed", "-", "Scene name, written to the outputs."),
+    "description": Key(str, "", "-", "Free text describing the scene and its source."),
+    "domain.dim": Key(int, 2, "-", "Dimension: 2 (plane strain, per metre of depth) or 3.", choices=(2, 3)),
+    "domain.lo_m": Key("vec", _REQ, "m", "Lower corner of the domain box (walls lie on its faces)."),
+    "domain.hi_m": Key("vec", _REQ, "m", "Upper corner of the domain box."),
+    "domain.cell_size_m": Key(float, _REQ, "m", "Grid cell size h.", lo=0.0, lo_open=True),
+    "boundary.x_lo": Key(str, "slip", "-", "Condition on the x-min face.", choices=FACE_KINDS),
+    "boundary.x_hi": Key(str, "slip", "-", "Condition on the x-max face.", choices=FACE_KINDS),
+    "boundary.y_lo": Key(str, "noslip", "-", "Condition on the y-min face.", choices=FACE_KINDS),
+    "boundary.y_hi": Key(str, "slip", "-", "Condition on the y-max face.", choices=FACE_KINDS),
+    "boundary.z_lo": Key(str, "noslip", "-", "Condition on the z-min face (3D).", choices=FACE_KINDS),
+    "boundary.z_hi": Key(str, "slip", "-", "Condition on the z-max face (3D).", choices=FACE_KINDS),
+    "boundary.planes": Key(
+        "table-list",
+        [],
+        "-",
+        "Extra planar walls, e.g. an inclined base: a list of tables with point_m (vec, m), "
+        "normal (vec, pointing into the fluid) and type (noslip, slip, symmetry).",
+    ),
+    "numerics.shape": Key(str, "quadratic", "-", "Shape function.", choices=tuple(_shapes.STENCIL)),
+    "numerics.transfer": Key(str, "apic", "-", "Particle-grid transfer: APIC or a FLIP/PIC blend.", choices=("apic", "flip")),
+    "numerics.flip_blend": Key(float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0),
+    "numerics.ppc": Key(int, 2, "-", "Particles per cell per axis for seeded bodies.", lo=1, hi=8),
+    "numerics.cfl": Key(
+        float, 0.4, "-", "Safety factor f of the wave-speed limit dt = f h / (c + |v|).", lo=0.0, lo_open=True, hi=1.0
+    ),
+    "numerics.viscous_safety": Key(
+        float, 0.5, "-", "Safety factor of the viscous limit dt = f rho h^2/(2 d mu_max) (explicit update only).",
+        lo=0.0, lo_open=True, hi=1.0,
+    ),
+    "numerics.viscous_update": Key(
+        str, "maxwell", "-", "Deviatoric stress update: exponential Maxwell (stable for any mu) or explicit.",
+        choices=("maxwell", "explicit"),
+    ),
+    "numerics.maxwell_shear_modulus_pa": Key(
+        float, 0.0, "Pa", "Maxwell regularisation modulus G; 0 means G = bulk modulus.", lo=0.0
+    ),
+    "numerics.velocity_scale_m_s": Key(
+        float, 0.0, "m/s", "Speed |v| in the wave-speed limit; 0 means sqrt(2 g H) + max initial speed, "
+        "H the height span of the material.", lo=0.0,
+    ),
+    "numerics.dt_s": Key(float, 0.0, "s", "Fixed time step; 0 means from the stability limits. "
+                         "A value above the limit is an error.", lo=0.0),
+    "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
+    "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
+    "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
+    "material.model": Key(str, "newtonian", "-", "Rheology.", choices=tuple(_rheology.MODELS)),
+    "material.density_kg_m3": Key(float, _REQ, "kg/m^3", "Reference density rho.", lo=0.0, lo_open=True),
+    "material.bulk_modulus_pa": Key(float, _REQ, "Pa", "Bulk modulus kappa of the Tait EOS.", lo=0.0, lo_open=True),
+    "material.viscosity_pa_s": Key(float, 1.0, "Pa s", "Newtonian viscosity, or Bingham plastic viscosity.", lo=0.0, lo_open=True),
+    "material.yield_stress_pa": Key(float, 0.0, "Pa", "Yield stress tau_y (Bingham, Herschel-Bulkley).", lo=0.0),
+    "material.bingham_variant": Key(str, "papanastasiou", "-", "Bingham law.", choices=("papanastasiou", "biviscosity")),
+    "material.alpha_b": Key(float, 100.0, "-", "Bi-viscosity ratio below yield.", lo=1.0, lo_open=True),
+    "material.papanastasiou_m_s": Key(float, 100.0, "s", "Papanastasiou regularisation time m.", lo=0.0, lo_open=True),
+    "material.consistency_pa_sn": Key(float, 1.0, "Pa s^n", "Herschel-Bulkley consistency K.", lo=0.0, lo_open=True),
+    "material.flow_index": Key(float, 1.0, "-", "Herschel-Bulkley flow index.", lo=0.0, lo_open=True, hi=3.0),
+    "material.mu0_pa_s": Key(float, 4.0, "Pa s", "Coussot minimum viscosity mu0.", lo=0.0, lo_open=True),
+    "material.alpha": Key(float, 1.0, "-", "Coussot destructuration coefficient alpha.", lo=0.0, lo_open=True),
+    "material.T_s": Key(float, 0.5, "s", "Coussot restructuring time T.", lo=0.0, lo_open=True),
+    "material.n": Key(float, 2.5, "-", "Coussot exponent n.", lo=0.0, lo_open=True, hi=10.0),
+    "material.lambda0": Key(float, 1.5, "-", "Coussot initial structure lambda0.", lo=0.0),
+    "material.mu_max_pa_s": Key(float, 5000.0, "Pa s", "Viscosity cap mu_max (Coussot, Herschel-Bulkley).", lo=0.0, lo_open=True),
+    "material.lambda_integrator": Key(str, "exact", "-", "Structure update: exact exponential, or the thesis's explicit Euler.",
+                                      choices=("exact", "euler")),
+    "material.shear_measure": Key(str, "standard", "-", "standard: sqrt(2 d':d'); thesis: d':d'/4 (eq. 3.8 and Annex 1).",
+                                  choices=("standard", "thesis")),
+    "gravity.g_m_s2": Key(float, 9.81, "m/s^2", "Magnitude of gravity (acts along -last axis before tilting).", lo=0.0),
+    "gravity.slope_deg": Key(float, 0.0, "deg", "Tilt of gravity about the vertical-x plane: the base slopes down "
+                             "towards +x by this angle.", lo=-89.0, hi=89.0),
+    "gravity.transverse_slope_deg": Key(float, 0.0, "deg", "3D only: tilt towards +y.", lo=-89.0, hi=89.0),
+    "bodies": Key("table-list", _REQ, "-", "Material blocks: tables with type = \"box\", lo_m, hi_m and optional velocity_m_s."),
+    "gate.point_m": Key("vec", None, "m", "Aging gate: a point on the plane (optional)."),
+    "gate.normal": Key("vec", None, "-", "Aging gate: normal; material ages once (x - point).normal > 0."),
+    "output.runout_axis": Key(int, 0, "-", "Axis along which runout is measured.", lo=0, hi=2),
+    "output.runout_origin_m": Key(float, math.nan, "m", "Origin of runout; default: the back (min) of the material "
+                                  "along runout_axis at t = 0."),
+}
+
+SECTIONS = {k.split(".")[0] for k in SCHEMA if "." in k}
+
+
+def _flatten(d: dict, prefix="") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and key in SECTIONS:
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def builtin_scenes() -> dict[str, Path]:
+    """Built-in scene names -> paths of the TOML files shipped inside the package."""
+    root = resources.files("mpmjax") / "scenes"
+    return {Path(str(p)).stem: Path(str(p)) for p in root.iterdir() if str(p).endswith(".toml")}
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``key=value`` with a TOML value (numbers, strings, lists); bare words become strings."""
+    if "=" not in text:
+        raise SceneError(f"--set {text!r}: expected key=value, e.g. material.mu0_pa_s=2.0")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    try:
+        val = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        val = raw.strip()
+    return key, val
+
+
+def _check(key: str, val: Any, spec: Key, dim: int):
+    def bad(why):
+        raise SceneError(f"{key} = {val!r} is invalid: {why} ({spec.doc} Unit: {spec.unit})")
+
+    if spec.type == "vec":
+        if not isinstance(val, (list, tuple)) or not all(isinstance(a, (int, float)) and not isinstance(a, bool)
+                                                         for a in val):
+            bad(f"expected a list of {dim} numbers")
+        if len(val) != dim:
+            bad(f"expected {dim} components for a {dim}D scene")
+        if not all(math.isfinite(a) for a in val):
+            bad("components must be finite")
+        return [float(a) for a in val]
+    if spec.type == "table-list":
+        if not isinstance(val, list) or not all(isinstance(a, dict) for a in val):
+            bad("expected a list of tables ([[...]] in TOML)")
+        return val
+    if spec.type is float:
+        if isinstance(val, bool) or not isinstance(val, (int, float)):
+            bad("expected a number")
+        val = float(val)
+        if not math.isfinite(val) and not (key == "output.runout_origin_m" and math.isnan(val)):
+            bad("must be finite")
+    elif spec.type is int:
+        if isinstance(val, bool) or not isinstance(val, int):
+            bad("expected an integer")
+    elif spec.type is str:
+        if not isinstance(val, str):
+            bad("expected a string")
+    if spec.choices is not None and val not in spec.choices:
+        bad(f"allowed values: {', '.join(map(str, spec.choices))}")
+    if spec.lo is not None and not (isinstance(val, float) and math.isnan(val)):
+        if val < spec.lo or (spec.lo_open and val == spec.lo):
+            rng = f"> {spec.lo}" if spec.lo_open else f">= {spec.lo}"
+            if spec.hi is not None:
+                rng += f" and <= {spec.hi}"
+            bad(f"allowed range: {rng}")
+    if spec.hi is not None and val > spec.hi:
+        bad(f"allowed range: <= {spec.hi}")
+    return val
+
+
+def validate(raw: dict) -> dict:
+    """Check a nested scene dict against ``SCHEMA``; returns a flat dict with defaults."""
+    flat = _flatten(raw)
+    unknown = sorted(k for k in flat if k not in SCHEMA)
+    if unknown:
+        raise SceneError(f"unknown key(s): {', '.join(unknown)}. Known keys: see `mpmjax scenes --keys` or docs/scenes.md")
+    dim = flat.get("domain.dim", 2)
+    dim = _check("domain.dim", dim, SCHEMA["domain.dim"], 2)
+    out = {}
+    for key, spec in SCHEMA.items():
+        if key in flat:
+            out[key] = _check(key, flat[key], spec, dim)
+        elif spec.default is _REQ:
+            raise SceneError(f"missing required key {key} ({spec.doc} Unit: {spec.unit})")
+        else:
+            out[key] = copy.deepcopy(spec.default)
+    lo, hi = np.asarray(out["domain.lo_m"]), np.asarray(out["domain.hi_m"])
+    if np.any(hi <= lo):
+        raise SceneError(f"domain.hi_m = {out['domain.hi_m']} must exceed domain.lo_m = {out['domain.lo_m']} on every axis")
+    h = out["domain.cell_size_m"]
+    ncell = (hi - lo) / h
+    if np.any(ncell < 1) or np.any(np.abs(ncell - np.round(ncell)) > 1e-6 * np.maximum(ncell, 1)):
+        raise SceneError(
+            f"domain.cell_size_m = {h} must divide the domain size {list(hi - lo)} into a whole number (>= 1) of cells"
+        )
+    if np.prod(np.round(ncell) + 7) > 5e7:
+        raise SceneError(f"domain.cell_size_m = {h} gives {int(np.prod(np.round(ncell)))} cells; the limit is 5e7")
+    if dim == 2 and any(k.startswith("boundary.z") for k in flat):
+        raise SceneError("boundary.z_lo / boundary.z_hi are only valid in 3D scenes (domain.dim = 3)")
+    if not out["bodies"]:
+        raise SceneError("bodies = [] is invalid: at least one material body is required")
+    for i, b in enumerate(out["bodies"]):
+        extra = set(b) - {"type", "lo_m", "hi_m", "velocity_m_s"}
+        if extra:
+            raise SceneError(f"bodies[{i}]: unknown key(s) {sorted(extra)}; allowed: type, lo_m, hi_m, velocity_m_s")
+        if b.get("type", "box") != "box":
+            raise SceneError(f"bodies[{i}].type = {b.get('type')!r} is invalid: allowed values: box")
+        vspec = Key("vec", None, "m", "body corner")
+        blo = np.asarray(_check(f"bodies[{i}].lo_m", b.get("lo_m"), vspec, dim))
+        bhi = np.asarray(_check(f"bodies[{i}].hi_m", b.get("hi_m"), vspec, dim))
+        _check(f"bodies[{i}].velocity_m_s", b.get("velocity_m_s", [0.0] * dim), Key("vec", None, "m/s", "velocity"), dim)
+        if np.any(bhi <= blo):
+            raise SceneError(f"bodies[{i}]: hi_m = {list(bhi)} must exceed lo_m = {list(blo)} on every axis")
+        if np.any(blo < lo - 1e-9) or np.any(bhi > hi + 1e-9):
+            raise SceneError(
+                f"bodies[{i}] = [{list(blo)}, {list(bhi)}] lies outside the domain [{list(lo)}, {list(hi)}] (m)"
+            )
+    for i, p in enumerate(out["boundary.planes"]):
+        extra = set(p) - {"point_m", "normal", "type"}
+        if extra:
+            raise SceneError(f"boundary.planes[{i}]: unknown key(s) {sorted(extra)}; allowed: point_m, normal, type")
+        _check(f"boundary.planes[{i}].point_m", p.get("point_m"), Key("vec", None, "m", "plane point"), dim)
+        nrm = _check(f"boundary.planes[{i}].normal", p.get("normal"), Key("vec", None, "-", "plane normal"), dim)
+        if np.linalg.norm(nrm) == 0:
+            raise SceneError(f"boundary.planes[{i}].normal = {nrm} must be non-zero")
+        _check(f"boundary.planes[{i}].type", p.get("type", "noslip"), Key(str, None, "-", "wall type", choices=WALL_KINDS), dim)
+    if (out["gate.point_m"] is None) != (out["gate.normal"] is None):
+        raise SceneError("gate.point_m and gate.normal must be given together")
+    if out["output.runout_axis"] >= dim:
+        raise SceneError(f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1}")
+    for ax in range(dim):
+        lo_k, hi_k = out[f"boundary.{'xyz'[ax]}_lo"], out[f"boundary.{'xyz'[ax]}_hi"]
+        if (lo_k == "periodic") != (hi_k == "periodic"):
+            raise SceneError(f"boundary.{'xyz'[ax]}_lo = {lo_k!r}, boundary.{'xyz'[ax]}_hi = {hi_k!r}: "
+                             "periodic must be set on both faces of an axis")
+    return out
+
+
+def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = None) -> dict:
+    """Read a built-in scene by name, or a TOML file by path, apply ``key=value``
+    overrides and validate.  Returns the flat validated dict."""
+    scenes = builtin_scenes()
+    name = str(name_or_path)
+    if name in scenes:
+        path = scenes[name]
+    else:
+        path = Path(name)
+        if not path.is_file():
+            raise SceneError(f"scene {name!r} is neither a built-in scene ({', '.join(sorted(scenes))}) nor a TOML file")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    items = overrides.items() if isinstance(overrides, dict) else [parse_override(o) for o in (overrides or [])]
+    for key, val in items:
+        if key not in SCHEMA:
+            raise SceneError(f"--set {key}: unknown key. Known keys: see `mpmjax scenes --keys` or docs/scenes.md")
+        node = raw
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise SceneError(f"--set {key}: {p} is not a table in {path}")
+        node[parts[-1]] = val
+    return validate(raw)
+
+
+def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
+    """Traced parameters from a validated scene dict."""
+    dim = cfg["domain.dim"] if dim is None else dim
+    dt = jnp.dtype(dtype)
+
+    def a(key):
+        return jnp.asarray(cfg[key], dt)
+
+    model = cfg["material.model"]
+    base = {"rho": a("material.density_kg_m3"), "kappa": a("material.bulk_modulus_pa")}
+    if model == "newtonian":
+        mat = _rheology.NewtonianParams(mu=a("material.viscosity_pa_s"), **base)
+    elif model == "bingham":
+        mat = _rheology.BinghamParams(
+            mu=a("material.viscosity_pa_s"), tau_y=a("material.yield_stress_pa"),
+            alpha_b=a("material.alpha_b"), m=a("material.papanastasiou_m_s"), **base,
+        )
+    elif model == "herschel_bulkley":
+        mat = _rheology.HerschelBulkleyParams(
+            tau_y=a("material.yield_stress_pa"), K=a("material.consistency_pa_sn"), n_hb=a("material.flow_index"),
+            m=a("material.papanastasiou_m_s"), mu_max=a("material.mu_max_pa_s"), **base,
+        )
+    else:
+        mat = _rheology.CoussotParams(
+            mu0=a("material.mu0_pa_s"), alpha=a("material.alpha"), T=a("material.T_s"), n=a("material.n"),
+            lambda0=a("material.lambda0"), mu_max=a("material.mu_max_pa_s"), **base,
+        )
+    g = cfg["gravity.g_m_s2"]
+    th = math.radians(cfg["gravity.slope_deg"])
+    ph = math.radians(cfg["gravity.transverse_slope_deg"])
+    if dim == 2:
+        gv = [g * math.sin(th), -g * math.cos(th)]
+    else:
+        gv = [g * math.sin(th), g * math.sin(ph), -g * math.cos(th) * math.cos(ph)]
+    return Params(material=mat, gravity=jnp.asarray(gv, dt))
+
+
+def make_rheology(cfg: dict):
+    model = cfg["material.model"]
+    if model == "bingham":
+        return _rheology.Bingham(variant=cfg["material.bingham_variant"], shear_measure=cfg["material.shear_measure"])
+    if model == "coussot":
+        return _rheology.Coussot(integrator=cfg["material.lambda_integrator"])
+    return _rheology.MODELS[model]()
+
+
+def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Regular particle seeding: ``ppc`` per axis per cell.  Returns x (n, dim) [m],
+    vol0 (n,) [m^dim] and v (n, dim) [m/s]."""
+    dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
+    dx = h / ppc
+    xs, vs = [], []
+    for b in cfg["bodies"]:
+        lo, hi = np.asarray(b["lo_m"]), np.asarray(b["hi_m"])
+        counts = np.maximum(np.round((hi - lo) / dx).astype(int), 1)
+        axes = [lo[d] + (np.arange(counts[d]) + 0.5) * (hi[d] - lo[d]) / counts[d] for d in range(dim)]
+        mesh = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
+        xs.append(mesh)
+        vs.append(np.broadcast_to(np.asarray(b.get("velocity_m_s", [0.0] * dim), float), mesh.shape))
+    x = np.concatenate(xs)
+    # each body's particles fill it exactly: volume = body volume / count
+    vols = []
+    for b, xb in zip(cfg["bodies"], xs):
+        vols.append(np.full(len(xb), np.prod(np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / len(xb)))
+    return x, np.concatenate(vols), np.concatenate(vs)
+
+
+@dataclasses.dataclass
+class Setup:
+    """A built run: static scene, traced parameters, initial state and derived facts."""
+
+    cfg: dict
+    scene: Scene
+    params: Params
+    state: Any
+    info: dict
+
+
+def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rheology) -> dict:
+    """Wave-speed and viscous limits [s] and the inputs they came from.
+
+    dt_wave = cfl h / (c + |v|), c = sqrt((kappa + 4/3 G)/rho) with the Maxwell modulus G
+    (G = 0 for the explicit update); |v| = velocity_scale_m_s, or sqrt(2 g H) plus the
+    largest initial speed, H the height span of the material (a free-fall bound).
+    dt_visc = viscous_safety rho h^2 / (2 d mu_max), mu_max the largest viscosity the law
+    can reach; it binds only the explicit update.
+    """
+    mat = params.material
+    rho, kappa = float(mat.rho), float(mat.kappa)
+    h, dim = cfg["domain.cell_size_m"], cfg["domain.dim"]
+    maxwell = cfg["numerics.viscous_update"] == "maxwell"
+    G = (cfg["numerics.maxwell_shear_modulus_pa"] or kappa) if maxwell else 0.0
+    c = math.sqrt((kappa + 4.0 / 3.0 * G) / rho)
+    vscale = cfg["numerics.velocity_scale_m_s"]
+    if vscale == 0.0:
+        H = float(np.ptp(x[:, -1])) + h / cfg["numerics.ppc"]
+        vscale = math.sqrt(2.0 * cfg["gravity.g_m_s2"] * H) + float(np.max(np.linalg.norm(v, axis=1), initial=0.0))
+    dt_wave = cfg["numerics.cfl"] * h / (c + vscale)
+    mu_max = float(rheology.max_viscosity(mat))
+    dt_visc = cfg["numerics.viscous_safety"] * rho * h * h / (2.0 * dim * mu_max)
+    limit = dt_wave if maxwell else min(dt_wave, dt_visc)
+    return {
+        "dt_wave_s": dt_wave, "dt_viscous_s": dt_visc, "dt_limit_s": limit, "wave_speed_m_s": c,
+        "velocity_scale_m_s": vscale, "maxwell_G_pa": G, "mu_max_pa_s": mu_max,
+    }
+
+
+def build(cfg: dict) -> Setup:
+    """Validated scene dict -> ``Setup`` (scene, params, initial state, info)."""
+    dim, h = cfg["domain.dim"], cfg["domain.cell_size_m"]
+    dtype = cfg["numerics.dtype"]
+    params = make_params(cfg, dim, dtype)
+    rheology = make_rheology(cfg)
+    x, vol0, v = seed_bodies(cfg)
+    lim = time_step_limits(cfg, params, x, v, rheology)
+    t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
+    dt_req = cfg["numerics.dt_s"]
+    if dt_req > 0.0:
+        if dt_req > lim["dt_limit_s"] * (1 + 1e-9):
+            raise SceneError(
+                f"numerics.dt_s = {dt_req} is invalid: allowed range: <= {lim['dt_limit_s']:.4g} s "
+                f"(wave-speed limit {lim['dt_wave_s']:.4g} s, viscous limit {lim['dt_viscous_s']:.4g} s)"
+            )
+        dt_target = dt_req
+    else:
+        dt_target = lim["dt_limit_s"]
+    spf = max(1, math.ceil(t_end / n_frames / dt_target - 1e-9))
+    dt = t_end / (n_frames * spf)
+    lo, hi = np.asarray(cfg["domain.lo_m"]), np.asarray(cfg["domain.hi_m"])
+    faces = [(cfg[f"boundary.{'xyz'[a]}_lo"], cfg[f"boundary.{'xyz'[a]}_hi"]) for a in range(dim)]
+    periodic = tuple(f[0] == "periodic" for f in faces)
+    ng = ghost_cells(cfg["numerics.shape"])
+    ncell = np.round((hi - lo) / h).astype(int)
+    origin = tuple(float(lo[a] - (0 if periodic[a] else ng * h)) for a in range(dim))
+    shape = tuple(int(ncell[a] if periodic[a] else ncell[a] + 2 * ng + 1) for a in range(dim))
+    walls = []
+    for a in range(dim):
+        for side, kind in zip((0, 1), faces[a]):
+            if kind in WALL_KINDS:
+                nrm = [0.0] * dim
+                nrm[a] = 1.0 if side == 0 else -1.0
+                pt = [0.0] * dim
+                pt[a] = float(lo[a] if side == 0 else hi[a])
+                walls.append(Wall(tuple(pt), tuple(nrm), kind))
+    for p in cfg["boundary.planes"]:
+        walls.append(Wall(tuple(map(float, p["point_m"])), tuple(map(float, p["normal"])), p.get("type", "noslip")))
+    gate = None
+    if cfg["gate.point_m"] is not None:
+        gate = Gate(tuple(cfg["gate.point_m"]), tuple(cfg["gate.normal"]))
+    scene = Scene(
+        dim=dim, h=float(h), lo=tuple(map(float, lo)), hi=tuple(map(float, hi)), periodic=periodic,
+        grid_origin=origin, grid_shape=shape, walls=tuple(walls), shape=cfg["numerics.shape"],
+        lp_cells=0.5 / cfg["numerics.ppc"], transfer=cfg["numerics.transfer"], flip_blend=cfg["numerics.flip_blend"],
+        rheology=rheology, shear_measure=cfg["material.shear_measure"], viscous_update=cfg["numerics.viscous_update"],
+        maxwell_G=float(lim["maxwell_G_pa"]) if lim["maxwell_G_pa"] else float(params.material.kappa),
+        dt=float(dt), steps_per_frame=int(spf), n_frames=int(n_frames), n_particles=int(len(x)), gate=gate, dtype=dtype,
+    )
+    state = init_state(scene, params, x, vol0, v)
+    axis = cfg["output.runout_axis"]
+    origin_r = cfg["output.runout_origin_m"]
+    if math.isnan(origin_r):
+        origin_r = float(min(b["lo_m"][axis] for b in cfg["bodies"]))
+    info = dict(lim, dt_s=float(dt), n_steps=scene.n_steps, runout_axis=axis, runout_origin_m=origin_r,
+                particle_spacing_m=h / cfg["numerics.ppc"])
+    return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
