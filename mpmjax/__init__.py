@@ -2,7 +2,7 @@
 
 Public API (modules are private; names are re-exported here):
 
-* scenes: ``load_scene``, ``build``, ``builtin_scenes``, ``SceneError``, ``SCHEMA``
+* scenes: ``load_scene``, ``validate`` (nested dict -> flat validated dict), ``build``, ``builtin_scenes``, ``SceneError``, ``SCHEMA``
 * the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``
 * time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
@@ -12,7 +12,7 @@ Public API (modules are private; names are re-exported here):
 
 from importlib.metadata import PackageNotFoundError, version
 
-from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params
+from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params, validate
 from ._observables import runout
 from ._rheology import (
     Bingham,
@@ -34,7 +34,7 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.1.0.dev0"
 
 __all__ = [
-    "SCHEMA", "SceneError", "Setup", "build", "builtin_scenes", "load_scene", "make_params", "runout",
+    "SCHEMA", "SceneError", "validate", "Setup", "build", "builtin_scenes", "load_scene", "make_params", "runout",
     "Bingham", "BinghamParams", "Coussot", "CoussotParams", "HerschelBulkley", "HerschelBulkleyParams",
     "Newtonian", "NewtonianParams", "Gate", "Params", "Scene", "State", "Wall", "init_state",
     "Frame", "make_advance", "make_chunk", "run", "simulate", "make_p2g", "make_step", "tait_pressure",

@@ -1,0 +1,176 @@
+"""Results on disk: HDF5 frames written as they are produced, summary.json, pictures.
+
+HDF5 schema of ``result.h5`` (see docs/output.md):
+
+* root attributes: ``scene`` (name), ``scene_config_json`` (the full validated scene,
+  JSON), ``params_json`` (material parameters and gravity, SI), ``code_version``,
+  ``dim``, ``dt_s``, ``n_particles``, ``n_frames_planned``, ``units_json``, ``complete``
+  (False until the run ends).
+* ``/particles/vol0_m3`` (n,) initial particle volume [m^3; 2D: m^2 per m depth],
+  ``/particles/mass_kg`` (n,) [kg; 2D: kg per m depth].
+* ``/frames/t_s`` (F,), ``/frames/x_m`` (F, n, dim), ``/frames/v_m_s`` (F, n, dim),
+  ``/frames/J`` (F, n), ``/frames/mu_pa_s`` (F, n), ``/frames/active`` (F, n) and one
+  dataset per rheology internal field (``/frames/lambda`` for Coussot).  Frame 0 is the
+  initial state.  Datasets grow by one frame at a time and the file is flushed after
+  each frame, so an interrupted run keeps every frame written so far.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+INTERNAL_NAMES = {"lam": "lambda"}
+UNITS = {
+    "t_s": "s", "x_m": "m", "v_m_s": "m/s", "J": "-", "mu_pa_s": "Pa s", "lambda": "-", "active": "bool",
+    "vol0_m3": "m^3 (2D: m^2 per metre of depth)", "mass_kg": "kg (2D: kg per metre of depth)",
+}
+
+
+def atomic_write_text(path: Path, text: str):
+    """Write ``text`` to ``path`` through a temporary file and an atomic rename."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        f = float(obj)
+        return None if not math.isfinite(f) else f
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def params_dict(params) -> dict:
+    mat = params.material
+    d = {f"material.{k}": float(np.asarray(v)) for k, v in mat._asdict().items()}
+    d["gravity_m_s2"] = np.asarray(params.gravity).tolist()
+    return d
+
+
+class FrameWriter:
+    """Appends frames to ``result.h5``; usable as a context manager."""
+
+    def __init__(self, path, setup, code_version: str):
+        self.path = Path(path)
+        self.f = h5py.File(self.path, "w")
+        s = setup
+        a = self.f.attrs
+        a["scene"] = s.cfg["name"]
+        a["scene_config_json"] = json.dumps(_jsonable(s.cfg))
+        a["params_json"] = json.dumps(params_dict(s.params))
+        a["code_version"] = code_version
+        a["dim"] = s.scene.dim
+        a["dt_s"] = s.scene.dt
+        a["n_particles"] = s.scene.n_particles
+        a["n_frames_planned"] = s.scene.n_frames + 1
+        a["units_json"] = json.dumps(UNITS)
+        a["complete"] = False
+        st = s.state
+        p = self.f.create_group("particles")
+        p["vol0_m3"] = np.asarray(st.vol0)
+        p["mass_kg"] = np.asarray(st.vol0) * float(s.params.material.rho)
+        self.g = self.f.create_group("frames")
+        n, dim = s.scene.n_particles, s.scene.dim
+        self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
+        for k in st.internal:
+            self.fields[INTERNAL_NAMES.get(k, k)] = (n,)
+        self.g.create_dataset("t_s", shape=(0,), maxshape=(None,), dtype="f8")
+        for name, shp in self.fields.items():
+            dt = "u1" if name == "active" else "f4"
+            self.g.create_dataset(name, shape=(0,) + shp, maxshape=(None,) + shp, dtype=dt, chunks=(1,) + shp,
+                                  compression="gzip", compression_opts=1)
+        self.n = 0
+
+    def append(self, state):
+        vals = {"x_m": state.x, "v_m_s": state.v, "J": state.J, "mu_pa_s": state.mu, "active": state.active}
+        for k, arr in state.internal.items():
+            vals[INTERNAL_NAMES.get(k, k)] = arr
+        self.g["t_s"].resize((self.n + 1,))
+        self.g["t_s"][self.n] = float(state.t)
+        for name in self.fields:
+            ds = self.g[name]
+            ds.resize((self.n + 1,) + ds.shape[1:])
+            ds[self.n] = np.asarray(vals[name])
+        self.n += 1
+        self.f.flush()
+
+    def close(self, complete: bool):
+        self.f.attrs["complete"] = bool(complete)
+        self.f.attrs["n_frames"] = self.n
+        self.f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        self.close(complete=exc_type is None)
+        return False
+
+
+def read_result(path) -> dict:
+    """Read ``result.h5`` back into numpy arrays: {'attrs': {...}, 'frames': {...}, 'particles': {...}}."""
+    with h5py.File(path, "r") as f:
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        frames = {k: f["frames"][k][()] for k in f["frames"]}
+        particles = {k: f["particles"][k][()] for k in f["particles"]}
+    return {"attrs": attrs, "frames": frames, "particles": particles}
+
+
+def plot_result(path_png, frames: dict, summary: dict, title: str, snapshot_times=(1.0, 5.0)):
+    """Side views at ~1 s, ~5 s (as in thesis Figs. 34-42) and the final time, coloured by
+    viscosity on one log scale, plus runout against time.  Vertical scale exaggerated."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    t = frames["t_s"]
+    picks = sorted({int(np.argmin(np.abs(t - ts))) for ts in snapshot_times if ts < t[-1]} | {len(t) - 1})
+    dim = frames["x_m"].shape[-1]
+    vert = dim - 1
+    act_all = frames["active"][picks].astype(bool)
+    mu_sel = np.clip(frames["mu_pa_s"][picks][act_all], 1e-9, None)
+    lo, hi = (mu_sel.min(), mu_sel.max()) if mu_sel.size else (1.0, 10.0)
+    norm = LogNorm(vmin=lo, vmax=max(hi, lo * 1.001))
+    xs = frames["x_m"][picks][act_all]
+    xmax, zmax = float(xs[:, 0].max()), float(xs[:, vert].max())
+    fig, axes = plt.subplots(len(picks) + 1, 1, figsize=(10, 2.0 * len(picks) + 2.5))
+    for ax, k in zip(axes, picks):
+        act = frames["active"][k].astype(bool)
+        x = frames["x_m"][k][act]
+        sc = ax.scatter(x[:, 0], x[:, vert], c=frames["mu_pa_s"][k][act], s=1.5, cmap="viridis", norm=norm)
+        ax.set_xlim(float(xs[:, 0].min()) - 0.02 * xmax, 1.05 * xmax)
+        ax.set_ylim(float(xs[:, vert].min()) - 0.05 * zmax, 1.15 * zmax)
+        ax.set_ylabel(("y" if vert == 1 else "z") + " [m]")
+        ax.set_title(f"{title}: t = {t[k]:.2f} s (vertical scale exaggerated)", fontsize=9)
+        fig.colorbar(sc, ax=ax, label="μ [Pa·s]")
+    axes[len(picks) - 1].set_xlabel("x [m]")
+    axr = axes[-1]
+    axr.plot(summary["times_s"], summary["runout_m"], "-o", ms=3)
+    axr.set_xlabel("time [s]")
+    axr.set_ylabel("runout [m]")
+    axr.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path_png, dpi=110)
+    plt.close(fig)
