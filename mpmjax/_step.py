@@ -43,7 +43,7 @@ def shear_measures(L, dim):
     d = 0.5 * (L + jnp.swapaxes(L, -1, -2))
     tr = jnp.trace(d, axis1=-2, axis2=-1)
     eye = jnp.eye(dim, dtype=L.dtype)
-    dprime = d - (tr / 3.0)[:, None, None] * eye
+    dprime = d - (tr / 3.0)[:, None, None] * eye[None]
     dd = jnp.sum(dprime * dprime, axis=(-2, -1))
     if dim == 2:
         dd = dd + (tr / 3.0) ** 2
@@ -139,12 +139,13 @@ def apply_wall(v, nrm, kind):
     velocity; ``symmetry`` remove all normal velocity.  ``nrm`` points into the fluid."""
     n = jnp.asarray(nrm, v.dtype)
     vn = v @ n
+    n = n[None, :]
     if kind == "noslip":
         return jnp.zeros_like(v)
     if kind == "slip":
-        return v - jnp.minimum(vn, 0.0)[..., None] * n
+        return v - jnp.minimum(vn, 0.0)[:, None] * n
     if kind == "symmetry":
-        return v - vn[..., None] * n
+        return v - vn[:, None] * n
     raise ValueError(kind)
 
 
@@ -159,7 +160,7 @@ def make_p2g(scene: Scene):
         mass_p = mat.rho * state.vol0 * state.active
         vol = state.vol0 * state.J * state.active
         p = tait_pressure(state.J, mat.kappa)
-        sigma = state.tau - p[:, None, None] * jnp.eye(dim, dtype=state.x.dtype)
+        sigma = state.tau - p[:, None, None] * jnp.eye(dim, dtype=state.x.dtype)[None]
         mw = mass_p[:, None] * st.w  # (n, S)
         if apic:
             vel = state.v[:, None, :] + jnp.einsum("nij,nsj->nsi", state.C, st.r)
@@ -222,16 +223,16 @@ def make_step(scene: Scene):
             n_ = jnp.asarray(nrm, dtp)
             phi = (x - jnp.asarray(wall.point, dtp)[None, :]) @ n_
             behind = phi < 0.0
-            x = jnp.where(behind[:, None], x - phi[:, None] * n_, x)
+            x = jnp.where(behind[:, None], x - phi[:, None] * n_[None, :], x)
             vn = v_p @ n_
-            v_p = jnp.where((behind & (vn < 0.0))[:, None], v_p - vn[:, None] * n_, v_p)
+            v_p = jnp.where((behind & (vn < 0.0))[:, None], v_p - vn[:, None] * n_[None, :], v_p)
         if per.any():
             lo_ = jnp.asarray(lo, dtp)[None, :]
             wrapped = lo_ + jnp.mod(x - lo_, jnp.asarray(span, dtp)[None, :])
             x = jnp.where(jnp.asarray(per)[None, :], wrapped, x)
 
         # particle update: volume, rheology, stress
-        J = state.J * jnp.linalg.det(jnp.eye(dim, dtype=dtp) + dt * L)
+        J = state.J * jnp.linalg.det(jnp.eye(dim, dtype=dtp)[None] + dt * L)
         dprime, dd = shear_measures(L, dim)
         shear = shear_rate(dd, scene.shear_measure)
         gate = state.gate

@@ -1,4 +1,4 @@
-"""Command line: ``mpmjax scenes | run | rheometer | bench``.
+"""Command line: ``mpmjax scenes | run | rheometer | bench | study``.
 
 Exit status: 0 success, 2 invalid input (the message names the key, the value and the
 allowed range), 130 interrupted (frames already written stay readable), 1 other errors.
@@ -195,6 +195,15 @@ def cmd_bench(args) -> int:
         return _fail(str(e))
 
 
+def cmd_study(args) -> int:
+    from ._studies import run_study
+
+    try:
+        return run_study(args.name, Path(args.out))
+    except ValueError as e:
+        return _fail(str(e))
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="mpmjax", description="Differentiable MPM for thixotropic mine tailings (SI units).")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -220,6 +229,10 @@ def main(argv=None) -> int:
     pb.add_argument("--steps", type=int, default=2000, help="steps per measurement")
     pb.add_argument("--dtype", default="float32", choices=("float32", "float64"))
     pb.set_defaults(fn=cmd_bench)
+    pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
+    pst.add_argument("name", choices=("numerical", "physical", "stiff"))
+    pst.add_argument("--out", default="studies", help="output directory")
+    pst.set_defaults(fn=cmd_study)
     args = p.parse_args(argv)
     return args.fn(args)
 
