@@ -7,22 +7,22 @@ Exact solutions (../shared/REFERENCE.md, Coussot 2002):
 All data used for fitting here are SYNTHETIC (generated from known parameters).
 """
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
-
 import argparse
 import csv
 import json
 import math
-import os
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from mpmjax import rheometer as R
 from mpmjax._rheology import coussot_lambda_exact
+
+# float64 for the accuracy checks (tests/conftest.py does this too).  Parameters are
+# built at call time, so enabling it after the imports is enough.
+jax.config.update("jax_enable_x64", True)
 
 RATES = (0.1, 1.0, 10.0, 100.0)  # 1/s, thesis Figs. 7, 26, 31
 T_SAVE = np.logspace(-2, 3, 200)  # s, 1e-2 .. 1e3 as in the thesis figures
@@ -49,39 +49,37 @@ def _rel(a, b):
 @pytest.mark.parametrize("name", list(PARAM_SETS))
 def test_constant_shear_matches_exact(name):
     p = _p(name)
-    for gdot in RATES:
-        res = R.constant_shear(p, gdot, T_SAVE)
+    # all four rates in one call (k decoupled equations in one solve), outputs (4, 200)
+    res = R.constant_shear(p, jnp.asarray(RATES), T_SAVE)
+    assert res.lam.shape == (len(RATES), T_SAVE.size)
+    for i, gdot in enumerate(RATES):
         lam_ex = coussot_lambda_exact(p.lambda0, gdot, T_SAVE, p.alpha, p.T)
-        err = _rel(res.lam, lam_ex)
-        # rtol = 1e-10 in the solver; the 1e-6 bound of the brief leaves >100x margin
-        # for dense-output interpolation at the save times (measured ~2e-8).
+        err = _rel(res.lam[i], lam_ex)
+        # rtol = 1e-10 in the solver; the 1e-6 bound of the brief leaves >30x margin
+        # for dense-output interpolation at the save times (measured <= 3e-8).
         assert err < 1e-6, (name, gdot, err)
         # mu and tau are the Coussot law of the returned lam, tau = mu gdot.
         mu_ex = jnp.minimum(p.mu0 * (1.0 + lam_ex**p.n), p.mu_max)
-        assert _rel(res.mu_pa_s, mu_ex) < 1e-5  # n <= 2.5 amplifies lam's error by n
-        np.testing.assert_allclose(res.tau_pa, res.mu_pa_s * gdot, rtol=1e-14)
+        assert _rel(res.mu_pa_s[i], mu_ex) < 1e-5  # d ln mu / d ln lam <= n = 2.5
+        np.testing.assert_allclose(res.tau_pa[i], res.mu_pa_s[i] * gdot, rtol=1e-14)
+        assert np.all(np.asarray(res.gamma_dot_1_s[i]) == gdot)
         # At t = 1000 s, alpha gdot t >= 36 e-folds: steady state (flow curve) reached.
         tau_ss, mu_ss = R.steady_flow_curve(p, gdot)
-        assert abs(float(res.mu_pa_s[-1]) / float(mu_ss) - 1.0) < 1e-5
+        assert abs(float(res.mu_pa_s[i, -1]) / float(mu_ss) - 1.0) < 1e-5
+    # a single rate (scalar) gives the same numbers, outputs (200,)
+    one = R.constant_shear(p, 1.0, T_SAVE)
+    assert one.lam.shape == T_SAVE.shape
+    assert _rel(one.lam, coussot_lambda_exact(p.lambda0, 1.0, T_SAVE, p.alpha, p.T)) < 1e-6
 
 
 def test_viscosity_cap_is_applied():
     # BASE at 0.1 1/s: lam_ss = 1/(1*0.5*0.1) = 20, mu0 (1 + 20^2.5) = 7159.6 > mu_max = 5000.
     p = _p("BASE")
-    res = R.constant_shear(p, 0.1, T_SAVE)
-    assert float(res.mu_pa_s[-1]) == 5000.0
-    assert abs(float(res.lam[-1]) - 20.0) < 20.0 * 1e-6  # lam itself is not capped
+    res = R.constant_shear(p, jnp.asarray(RATES), T_SAVE)
+    assert float(res.mu_pa_s[0, -1]) == 5000.0
+    assert abs(float(res.lam[0, -1]) - 20.0) < 20.0 * 1e-6  # lam itself is not capped
     # and at 100 1/s the viscosity relaxes towards mu0 (1 + 0.02^2.5) = 4.000226 Pa s
-    res = R.constant_shear(p, 100.0, T_SAVE)
-    assert abs(float(res.mu_pa_s[-1]) - 4.0 * (1.0 + 0.02**2.5)) < 1e-6
-
-
-def test_constant_shear_is_jittable_and_vmappable():
-    p = _p("BASE")
-    f = jax.jit(lambda p, g: R.constant_shear(p, g, T_SAVE).lam)
-    lam = jax.vmap(f, in_axes=(None, 0))(p, jnp.asarray(RATES))
-    lam_ex = jnp.stack([coussot_lambda_exact(p.lambda0, g, T_SAVE, p.alpha, p.T) for g in RATES])
-    assert _rel(lam, lam_ex) < 1e-6
+    assert abs(float(res.mu_pa_s[3, -1]) - 4.0 * (1.0 + 0.02**2.5)) < 1e-6
 
 
 # --------------------------------------------------------------------------------------
@@ -93,10 +91,11 @@ def test_constant_shear_is_jittable_and_vmappable():
 def test_flow_curve_minimum_is_critical_point(name):
     p = _p(name, mu_max=1e300)  # uncapped curve: the analytic minimum is global
     gc, tc = (float(x) for x in R.critical_point(p))
-    # log grid, 6 decades around gdot_c, spacing h in ln(gdot)
+    # fixed log grid 1e-4..1e4 1/s (independent of gdot_c, which is not a grid point),
+    # spacing h in ln(gdot)
     npts = 200_001
-    g = np.exp(np.linspace(math.log(gc) - 3 * math.log(10), math.log(gc) + 3 * math.log(10), npts))
-    h = 6 * math.log(10) / (npts - 1)  # 6.9e-5
+    g = np.geomspace(1e-4, 1e4, npts)
+    h = 8 * math.log(10) / (npts - 1)  # 9.2e-5
     tau, _ = R.steady_flow_curve(p, jnp.asarray(g))
     i = int(jnp.argmin(tau))
     # The argmin of a sampled smooth minimum lies within h/2 of the true one in ln(gdot);
@@ -156,13 +155,16 @@ def _exact_history(p, times, rates, t):
 @pytest.mark.parametrize(
     "times,rates",
     [
-        ((0.0, 10.0), (100.0, 0.1)),  # break down at 100 1/s, then rebuild at 0.1 1/s
+        # break down at 100 1/s, rebuild at 0.1 1/s (third segment repeats the rate)
+        ((0.0, 10.0, 500.0), (100.0, 0.1, 0.1)),
         ((0.0, 100.0, 110.0), (0.1, 100.0, 1.0)),  # build, break, partial rebuild
     ],
 )
 def test_shear_rate_steps_follow_restarted_exact_solution(times, rates):
     p = _p("BASE")
-    t = np.unique(np.concatenate([np.linspace(0.0, 1000.0, 401), np.asarray(times), np.asarray(times[1:]) + 1e-3]))
+    # 401 uniform points (containing the step times) plus 1 ms after each step;
+    # same shape for both schedules, so one compilation serves both.
+    t = np.sort(np.concatenate([np.linspace(0.0, 1000.0, 401), np.asarray(times[1:]) + 1e-3]))
     res = R.shear_history(p, times, rates, t)
     lam_ex = _exact_history(p, np.asarray(times), rates, t)
     err = _rel(res.lam, lam_ex)
@@ -197,14 +199,13 @@ def test_gradient_matches_finite_differences_and_exact():
         lam = coussot_lambda_exact(p.lambda0, 1.0, T_SAVE, p.alpha, p.T)
         return jnp.sum(jnp.log(p.mu0 * (1.0 + lam**p.n)))
 
-    g = jax.jit(jax.grad(out))(p)
+    g = jax.jit(jax.grad(out))(p)  # also checks that the solve is jit-able under grad
     g_ex = jax.grad(out_exact)(p)
-    out_j = jax.jit(out)
     for k in ("mu0", "alpha", "T", "n", "lambda0"):
         v = float(getattr(p, k))
         # central FD, step 1e-4 v: truncation ~1e-8, solver noise ~rtol/1e-4 = 1e-6 relative
         h = 1e-4 * v
-        fd = (out_j(p._replace(**{k: jnp.asarray(v + h)})) - out_j(p._replace(**{k: jnp.asarray(v - h)}))) / (2 * h)
+        fd = (out(p._replace(**{k: jnp.asarray(v + h)})) - out(p._replace(**{k: jnp.asarray(v - h)}))) / (2 * h)
         ad = float(getattr(g, k))
         assert abs(ad / float(fd) - 1.0) < 1e-4, (k, ad, float(fd))
         # and against the derivative of the exact solution (solver error ~1e-8)
@@ -227,8 +228,15 @@ def test_fit_flow_curve_recovers_identifiable_params(optimizer, steps):
     data = {"gamma_dot_1_s": g, "tau_pa": np.asarray(tau)}
     # start about a factor 2 off: mu0 /2, alpha x2 (alpha*T x2), n x0.6
     init = R.make_params(**dict(TRUE, mu0=2.0, alpha=2.0, n=1.5))
-    fr = R.fit(data, init, fit=("mu0", "alpha", "T", "n"), kind="flow_curve", steps=steps,
-               learning_rate=0.05, optimizer=optimizer)
+    fr = R.fit(
+        data,
+        init,
+        fit=("mu0", "alpha", "T", "n"),
+        kind="flow_curve",
+        steps=steps,
+        learning_rate=0.05,
+        optimizer=optimizer,
+    )
     assert fr.loss_final < 0.05 * fr.loss_initial  # > 95 % drop (brief)
     assert fr.loss_final < 1e-12  # noise-free data: the minimum is exactly zero
     assert fr.loss_history.shape == (steps,) and abs(fr.loss_history[0] - fr.loss_initial) < 1e-12
@@ -264,20 +272,23 @@ def test_flow_curve_jacobian_is_rank_deficient_in_alpha_T():
 def test_fit_transient_identifies_alpha_and_T_separately():
     true = R.make_params(**TRUE)
     # SYNTHETIC constant-shear transients at 0.5 and 5 1/s, t = 0.01..100 s
-    t = np.geomspace(1e-2, 1e2, 30)
+    t = np.geomspace(1e-2, 1e2, 20)
     rates = np.array([0.5, 5.0])
-    mu = np.stack([np.asarray(R.constant_shear(true, r, t).mu_pa_s) for r in rates])
+    lam = np.stack([np.asarray(coussot_lambda_exact(true.lambda0, r, t, true.alpha, true.T)) for r in rates])
+    mu = 4.0 * (1.0 + lam**2.5)  # exact solution (cap not reached: mu <= 58 Pa s)
     data = {"t_s": t, "gamma_dot_1_s": rates, "mu_pa_s": mu}
-    init = R.make_params(**dict(TRUE, mu0=2.0, alpha=2.0, T=0.75, n=2.0))
-    fr = R.fit(data, init, kind="transient", steps=300, learning_rate=0.05, optimizer="adam")
-    assert fr.loss_final < 1e-3 * fr.loss_initial
+    # Start with alpha x2 and T x1.5: alpha/T = 2.67 (truth 2), alpha*T = 1.5 (truth 0.5).
+    init = R.make_params(**dict(TRUE, alpha=2.0, T=0.75))
+    # Adam (one compiled value-and-grad; cheaper to compile than L-BFGS' line search)
+    fr = R.fit(data, init, fit=("alpha", "T"), kind="transient", steps=400, learning_rate=0.1)
+    assert fr.loss_final < 1e-8 * fr.loss_initial  # converged (measured ~3e-14)
     q = fr.params
-    # Relaxation rate alpha*gdot fixes alpha, lam_ss = 1/(alpha T gdot) then fixes T.
-    # Adam is not run to convergence (300 steps, measured errors <= 3 %); 10 % bounds
-    # still separate this from the flow-curve case, where alpha/T stays at its start.
-    for got, want in ((q.alpha, 1.0), (q.T, 0.5), (q.mu0, 4.0), (q.n, 2.5)):
-        assert abs(float(got) / want - 1.0) < 0.1, (float(got), want)
-    assert abs(float(q.alpha / q.T) / 2.0 - 1.0) < 0.1  # moved from 2.67 to ~2
+    # The relaxation rate alpha*gdot fixes alpha and lam_ss = 1/(alpha T gdot) then T,
+    # so both are recovered individually (unlike the flow-curve fit).  The fit solves
+    # at rtol 1e-8 against exact data: a model error ~1e-8..1e-7 in ln(mu) (dense
+    # output), i.e. parameter errors ~1e-6 (measured 4e-7); assert 1e-4.
+    assert abs(float(q.alpha) - 1.0) < 1e-4, float(q.alpha)
+    assert abs(float(q.T) / 0.5 - 1.0) < 1e-4, float(q.T)
 
 
 def test_fit_rejects_bad_arguments():
@@ -349,7 +360,7 @@ def test_cli_rejects_bad_input(tmp_path, capsys, argv, option):
     rc = R.run_from_args(_parse(argv + ["--out", str(out)]))
     assert rc == 2
     err = capsys.readouterr().err
-    assert option in err and "allowed range" in err or "expected" in err, err
+    assert option in err and "allowed range" in err, err
     assert argv[1] in err  # names the offending value
     assert "Traceback" not in err
     assert not out.exists()  # nothing written
