@@ -65,7 +65,7 @@ SCHEMA: dict[str, Key] = {
         "Extra planar walls, e.g. an inclined base: a list of tables with point_m (vec, m), "
         "normal (vec, pointing into the fluid) and type (noslip, slip, symmetry).",
     ),
-    "numerics.shape": Key(str, "quadratic", "-", "Shape function.", choices=tuple(_shapes.STENCIL)),
+    "numerics.shape": Key(str, "gimp", "-", "Shape function (gimp: the thesis's choice; see docs/validation.md for the measured accuracy of each).", choices=tuple(_shapes.STENCIL)),
     "numerics.transfer": Key(str, "apic", "-", "Particle-grid transfer: APIC or a FLIP/PIC blend.", choices=("apic", "flip")),
     "numerics.flip_blend": Key(float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0),
     "numerics.ppc": Key(int, 2, "-", "Particles per cell per axis for seeded bodies.", lo=1, hi=8),

@@ -55,7 +55,7 @@ def _cubic_kernel(r):
 
 def _cubic(xi):
     base = jnp.floor(xi) - 1.0
-    r = xi[..., None] - (base[..., None] + jnp.arange(4.0))
+    r = xi[..., None] - (base[..., None] + jnp.arange(4.0, dtype=xi.dtype).reshape((1,) * xi.ndim + (4,)))
     w, dw = _cubic_kernel(r)
     return base, w, dw
 
@@ -77,7 +77,7 @@ def _gimp_kernel(r, lp):
 
 def _gimp(xi, lp):
     base = jnp.floor(xi - 0.5)
-    r = xi[..., None] - (base[..., None] + jnp.arange(3.0))
+    r = xi[..., None] - (base[..., None] + jnp.arange(3.0, dtype=xi.dtype).reshape((1,) * xi.ndim + (3,)))
     w, dw = _gimp_kernel(r, lp)
     return base, w, dw
 

@@ -78,8 +78,10 @@ def deviatoric_update(tau, L, dprime, mu, G, dt, method: str):
         return 2.0 * mu[:, None, None] * dprime
     W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
     tau_rot = tau + dt * (W @ tau - tau @ W)
-    decay = jnp.exp(-G * dt / mu)[:, None, None]
-    return tau_rot * decay + 2.0 * mu[:, None, None] * (1.0 - decay) * dprime
+    x = G * dt / mu
+    decay = jnp.exp(-x)[:, None, None]
+    # 1 - e^{-x} via expm1: keeps the elastic limit 2 G dt d' exact in float32 for huge mu
+    return tau_rot * decay + 2.0 * (mu * -jnp.expm1(-x))[:, None, None] * dprime
 
 
 class _Stencil:
@@ -244,7 +246,7 @@ def make_step(scene: Scene):
 
         # loss detection: stencil outside the grid, or a non-finite state
         inside = jnp.all(per[None, :] | ((x >= safe_lo[None, :]) & (x <= safe_hi[None, :])), axis=1)
-        finite = jnp.all(jnp.isfinite(x), axis=1) & jnp.all(jnp.isfinite(v_p), axis=1) & jnp.isfinite(J)
+        finite = jnp.all(jnp.isfinite(x), axis=1) & jnp.all(jnp.isfinite(v_p), axis=1) & jnp.isfinite(J) & (J > 0)
         ok = inside & finite
         lost_now = state.active & ~ok
         active = state.active & ok
