@@ -29,6 +29,36 @@ from . import _shapes
 from ._scene import TAIT_C, Params, Scene, State
 
 
+# Small fixed-size contractions written as broadcast-multiply-sum: XLA:CPU lowers batched
+# einsum/matmul over tiny (dim x dim) matrices to slow per-batch dot calls, while these fuse
+# into the surrounding elementwise loops (measured: the P2G went from 629 to ~250 us per
+# step on the default scene).
+def _bmv(A, r):
+    """(n, i, j) x (n, s, j) -> (n, s, i)."""
+    d = A.shape[-1]
+    return jnp.stack([sum(A[:, i, j][:, None] * r[:, :, j] for j in range(d)) for i in range(A.shape[1])], axis=-1)
+
+
+def _wsum(w, v):
+    """(n, s) x (n, s, i) -> (n, i)."""
+    return jnp.stack([jnp.sum(w * v[:, :, i], axis=1) for i in range(v.shape[-1])], axis=-1)
+
+
+def _outer_sum(a, b):
+    """(n, s, i) x (n, s, j) -> (n, i, j)."""
+    rows = [jnp.stack([jnp.sum(a[:, :, i] * b[:, :, j], axis=1) for j in range(b.shape[-1])], axis=-1)
+            for i in range(a.shape[-1])]
+    return jnp.stack(rows, axis=1)
+
+
+def _mm(A, B):
+    """(n, i, k) x (n, k, j) -> (n, i, j)."""
+    d = A.shape[-1]
+    rows = [jnp.stack([sum(A[:, i, k] * B[:, k, j] for k in range(d)) for j in range(B.shape[-1])], axis=-1)
+            for i in range(A.shape[1])]
+    return jnp.stack(rows, axis=1)
+
+
 def tait_pressure(J, kappa):
     """Tait-type EOS p = C kappa [exp((1 - J)/C) - 1], C = 0.0894 (thesis eq. 3.11) [Pa]."""
     return TAIT_C * kappa * jnp.expm1((1.0 - J) / TAIT_C)
@@ -77,7 +107,7 @@ def deviatoric_update(tau, L, dprime, mu, G, dt, method: str):
     if method == "explicit":
         return 2.0 * mu[:, None, None] * dprime
     W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
-    tau_rot = tau + dt * (W @ tau - tau @ W)
+    tau_rot = tau + dt * (_mm(W, tau) - _mm(tau, W))
     x = G * dt / mu
     decay = jnp.exp(-x)[:, None, None]
     # 1 - e^{-x} via expm1: keeps the elastic limit 2 G dt d' exact in float32 for huge mu
@@ -165,11 +195,11 @@ def make_p2g(scene: Scene):
         sigma = state.tau - p[:, None, None] * jnp.eye(dim, dtype=state.x.dtype)[None]
         mw = mass_p[:, None] * st.w  # (n, S)
         if apic:
-            vel = state.v[:, None, :] + jnp.einsum("nij,nsj->nsi", state.C, st.r)
+            vel = state.v[:, None, :] + _bmv(state.C, st.r)
         else:
             vel = jnp.broadcast_to(state.v[:, None, :], st.r.shape)
         mom = mw[..., None] * vel
-        force = -vol[:, None, None] * jnp.einsum("nij,nsj->nsi", sigma, st.dw)
+        force = -vol[:, None, None] * _bmv(sigma, st.dw)
         chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
         grid = jnp.zeros((scene.n_nodes, 1 + 2 * dim), state.x.dtype)
         grid = grid.at[st.idx.reshape(-1)].add(chans.reshape(-1, 1 + 2 * dim))
@@ -205,17 +235,17 @@ def make_step(scene: Scene):
 
         # G2P
         vi = v_new[st.idx]  # (n, S, dim)
-        v_pic = jnp.einsum("ns,nsi->ni", st.w, vi)
-        L = jnp.einsum("nsi,nsj->nij", vi, st.dw)
+        v_pic = _wsum(st.w, vi)
+        L = _outer_sum(vi, st.dw)
         if scene.transfer == "apic":
             v_p = v_pic
             if d_apic is not None:
-                B = jnp.einsum("ns,nsi,nsj->nij", st.w, vi, st.r)
+                B = _outer_sum(st.w[:, :, None] * vi, st.r)
                 C = B / (d_apic * scene.h**2)
             else:
                 C = L
         else:
-            dv = jnp.einsum("ns,nsi->ni", st.w, vi - v_old[st.idx])
+            dv = _wsum(st.w, vi - v_old[st.idx])
             v_p = scene.flip_blend * (state.v + dv) + (1.0 - scene.flip_blend) * v_pic
             C = jnp.zeros_like(L)
         x = state.x + dt * v_pic
