@@ -38,16 +38,6 @@ KAPPA = 15000.0  # Pa, thesis lab value (REFERENCE.md "Pressure")
 ROUNDOFF = 1e-12
 
 
-def _lenient():
-    """Context allowing implicit rank promotion, for code paths that reach
-    ``_shapes._gimp`` / ``_shapes._cubic``.  ENGINE BUG (reproduced by
-    ``test_shape_functions_obey_strict_rank_promotion``, patch in its docstring): those
-    two kernels add a (..., 1) array to a (k,) array, which the strict harness
-    (conftest: rank promotion raises) rejects, so GIMP and cubic scenes cannot run at
-    all under it.  Remove this wrapper once _shapes.py is fixed."""
-    return jax.numpy_rank_promotion("allow")
-
-
 def _cfg(dim, lo, hi, h, faces, bodies, *, t_end, n_frames, mu=1.0, numerics=None, g=G, slope=0.0):
     """A validated float64 Newtonian scene dict (thesis lab kappa, water density)."""
     num = {"dtype": "float64", "shape": "quadratic"}
@@ -95,37 +85,24 @@ def _sample_xi(kind, n=400, seed=0):
     return jnp.asarray(xi[d > 1e-3], jnp.float64)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=ValueError,
-    reason=(
-        "engine bug: _shapes._gimp/_cubic rely on implicit rank promotion "
-        "(base[..., None] + jnp.arange(k)), rejected by the strict harness; "
-        "see the patch in this test's docstring, then drop the marker and _lenient()"
-    ),
-)
-@pytest.mark.parametrize("kind", ["gimp", "cubic"])
-def test_shape_functions_obey_strict_rank_promotion(kind):
-    """Shape functions must evaluate under jax_numpy_rank_promotion = "raise".
+@pytest.mark.parametrize("kind", SHAPES)
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_shape_functions_strict_broadcasting_and_dtype(kind, dtype):
+    """Shape functions evaluate under jax_numpy_rank_promotion = "raise" and keep the
+    input dtype (float32 scenes stay float32 with x64 on).
 
-    Repro: ``jax.config.update("jax_numpy_rank_promotion", "raise");
-    _shapes.weights_1d("gimp", jnp.ones(3) * 2.3, 0.1)`` raises "Operands could not be
-    broadcast together for add on shapes (3, 1) (3,)".  Proposed patch (mpmjax/_shapes.py),
-    which also keeps float32 weights float32 when x64 is on (jnp.arange(k * 1.0) is
-    float64 there and silently promotes):
-
-        -    r = xi[..., None] - (base[..., None] + jnp.arange(4.0))
-        +    r = xi[..., None] - (base[..., None] + _offsets(4, xi))
-        ...
-        -    r = xi[..., None] - (base[..., None] + jnp.arange(3.0))
-        +    r = xi[..., None] - (base[..., None] + _offsets(3, xi))
-
-        +def _offsets(k, xi):
-        +    return jnp.arange(k, dtype=xi.dtype).reshape((1,) * xi.ndim + (k,))
+    Regression test for a bug found while writing this file: _gimp and _cubic added a
+    (..., 1) array to jnp.arange(k * 1.0) of shape (k,), which the strict harness
+    rejects (so GIMP/cubic scenes could not run under it) and which, with x64 on, is
+    float64 and silently promoted float32 weights.  Weights must sum to 1 (round-off
+    of the dtype: 1e-6 in float32, 1e-12 in float64).
     """
+    xi = jnp.full((3, 2), 2.3, dtype)
     with jax.numpy_rank_promotion("raise"):
-        _, w, _ = _shapes.weights_1d(kind, jnp.full((3,), 2.3, jnp.float64), 0.1, LP)
-    np.testing.assert_allclose(np.asarray(w).sum(-1), 1.0, atol=ROUNDOFF)
+        base, w, dw = _shapes.weights_1d(kind, xi, 0.1, LP)
+    assert w.dtype == dtype and dw.dtype == dtype
+    assert w.shape == (3, 2, _shapes.STENCIL[kind]) and base.shape == (3, 2)
+    np.testing.assert_allclose(np.asarray(w, np.float64).sum(-1), 1.0, atol=1e-6 if dtype == jnp.float32 else ROUNDOFF)
 
 
 @pytest.mark.parametrize("kind", SHAPES)
@@ -137,8 +114,7 @@ def test_shape_partition_of_unity_and_linear_completeness(kind):
     """
     h = 0.03
     xi = _sample_xi(kind)
-    with _lenient():
-        base, w, dw = _shapes.weights_1d(kind, xi, h, LP)
+    base, w, dw = _shapes.weights_1d(kind, xi, h, LP)
     k = _shapes.STENCIL[kind]
     nodes = np.asarray(base)[:, None] + np.arange(k)[None, :]  # cell units
     w, dw = np.asarray(w), np.asarray(dw) * h  # dw per cell
@@ -159,10 +135,9 @@ def test_shape_gradient_matches_finite_difference(kind):
     h = 0.05
     xi = _sample_xi(kind, seed=1)
     e = 1e-6
-    with _lenient():
-        base, w, dw = _shapes.weights_1d(kind, xi, h, LP)
-        bp, wp, _ = _shapes.weights_1d(kind, xi + e, h, LP)
-        bm, wm, _ = _shapes.weights_1d(kind, xi - e, h, LP)
+    base, w, dw = _shapes.weights_1d(kind, xi, h, LP)
+    bp, wp, _ = _shapes.weights_1d(kind, xi + e, h, LP)
+    bm, wm, _ = _shapes.weights_1d(kind, xi - e, h, LP)
     k = _shapes.STENCIL[kind]
 
     def on_nodes(b, ww):  # weights indexed by absolute node over a window [base-1, base+k]
@@ -210,8 +185,7 @@ def test_stencil_tensor_product_identities(kind, dim):
         n_particles=50,
     )
     x = jnp.asarray(np.random.default_rng(2).uniform(0.05, 0.35, (50, dim)), jnp.float64)
-    with _lenient():
-        idx, w, dw, r = jax.jit(lambda x: (lambda st: (st.idx, st.w, st.dw, st.r))(_Stencil(scene, x)))(x)
+    idx, w, dw, r = jax.jit(lambda x: (lambda st: (st.idx, st.w, st.dw, st.r))(_Stencil(scene, x)))(x)
     w, dw, r = np.asarray(w), np.asarray(dw), np.asarray(r)
     np.testing.assert_allclose(w.sum(1), 1.0, rtol=0, atol=ROUNDOFF)
     np.testing.assert_allclose((w[..., None] * r).sum(1), 0.0, rtol=0, atol=ROUNDOFF * h)
@@ -279,8 +253,7 @@ def test_mass_conserved_by_p2g():
         grid_mass = jax.jit(lambda st, prm, p2g=p2g: p2g(st, prm)[0])
         for k in range(frames.x.shape[0]):
             st = s.state._replace(x=frames.x[k], J=frames.J[k], active=frames.active[k])
-            with _lenient():
-                mass = grid_mass(st, s.params)
+            mass = grid_mass(st, s.params)
             assert abs(float(jnp.sum(mass)) - m_particles) <= ROUNDOFF * m_particles, (kind, k)
 
 
@@ -405,8 +378,7 @@ def _hydrostatic(shape="gimp", h=0.01):
         numerics={"shape": shape},
     )
     s = m.build(cfg)
-    with _lenient():
-        final, frames = m.run(s.scene, s.state, s.params)
+    final, frames = m.run(s.scene, s.state, s.params)
     return s, final, frames
 
 
@@ -477,8 +449,7 @@ def _poiseuille(h, shape, t_end=2.0, nx=4):
     s = m.build(cfg)
     # gravity purely along x (slope_deg is capped at 89 degrees); params are traced
     params = s.params._replace(gravity=jnp.asarray([G, 0.0], jnp.float64))
-    with _lenient():
-        final, _ = m.run(s.scene, s.state, params)
+    final, _ = m.run(s.scene, s.state, params)
     return s, final
 
 
