@@ -2,7 +2,8 @@
 
 Public API (modules are private; names are re-exported here):
 
-* scenes: ``load_scene``, ``validate`` (nested dict -> flat validated dict), ``build``, ``builtin_scenes``, ``SceneError``, ``SCHEMA``
+* scenes: ``load_scene``, ``validate`` (nested dict -> flat validated dict), ``build``,
+  ``builtin_scenes``, ``SceneError``, ``SCHEMA``
 * the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``
 * time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
@@ -34,8 +35,35 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.1.0.dev0"
 
 __all__ = [
-    "SCHEMA", "SceneError", "validate", "Setup", "build", "builtin_scenes", "load_scene", "make_params", "runout",
-    "Bingham", "BinghamParams", "Coussot", "CoussotParams", "HerschelBulkley", "HerschelBulkleyParams",
-    "Newtonian", "NewtonianParams", "Gate", "Params", "Scene", "State", "Wall", "init_state",
-    "Frame", "make_advance", "make_chunk", "run", "simulate", "make_p2g", "make_step", "tait_pressure",
+    "SCHEMA",
+    "SceneError",
+    "validate",
+    "Setup",
+    "build",
+    "builtin_scenes",
+    "load_scene",
+    "make_params",
+    "runout",
+    "Bingham",
+    "BinghamParams",
+    "Coussot",
+    "CoussotParams",
+    "HerschelBulkley",
+    "HerschelBulkleyParams",
+    "Newtonian",
+    "NewtonianParams",
+    "Gate",
+    "Params",
+    "Scene",
+    "State",
+    "Wall",
+    "init_state",
+    "Frame",
+    "make_advance",
+    "make_chunk",
+    "run",
+    "simulate",
+    "make_p2g",
+    "make_step",
+    "tait_pressure",
 ]

@@ -49,9 +49,15 @@ def _measure(setup, steps: int, reps: int = 3) -> dict:
         best = min(best, time.perf_counter() - t0)
     n = setup.scene.n_particles
     return {
-        "n_particles": n, "steps": steps, "best_wall_s": best, "compile_s": compile_s,
-        "particle_steps_per_s": n * steps / best, "n_lost": int(out.n_lost),
-        "grid_shape": list(setup.scene.grid_shape), "shape": setup.scene.shape, "transfer": setup.scene.transfer,
+        "n_particles": n,
+        "steps": steps,
+        "best_wall_s": best,
+        "compile_s": compile_s,
+        "particle_steps_per_s": n * steps / best,
+        "n_lost": int(out.n_lost),
+        "grid_shape": list(setup.scene.grid_shape),
+        "shape": setup.scene.shape,
+        "transfer": setup.scene.transfer,
     }
 
 
@@ -72,16 +78,23 @@ def run_bench(args) -> int:
     assert setup.scene.n_particles == 8192
     results["mpm88-equivalent"] = _measure(setup, args.steps)
     meta = {
-        "machine": platform.machine(), "processor": platform.processor(), "cpus": os.cpu_count(),
-        "python": sys.version.split()[0], "jax": jax.__version__, "backend": jax.default_backend(),
-        "devices": [str(d) for d in jax.devices()], "dtype": args.dtype,
+        "machine": platform.machine(),
+        "processor": platform.processor(),
+        "cpus": os.cpu_count(),
+        "python": sys.version.split()[0],
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "dtype": args.dtype,
     }
     doc = {"meta": meta, "results": results}
     with open(args.out, "w") as f:
         json.dump(doc, f, indent=2)
     print(f"{'configuration':20s} {'particles':>9s} {'steps':>6s} {'compile s':>9s} {'wall s':>8s} {'p-steps/s':>10s}")
     for k, r in results.items():
-        print(f"{k:20s} {r['n_particles']:9d} {r['steps']:6d} {r['compile_s']:9.2f} {r['best_wall_s']:8.3f} "
-              f"{r['particle_steps_per_s']:10.3g}")
+        print(
+            f"{k:20s} {r['n_particles']:9d} {r['steps']:6d} {r['compile_s']:9.2f} {r['best_wall_s']:8.3f} "
+            f"{r['particle_steps_per_s']:10.3g}"
+        )
     print(f"({meta['backend']}, {meta['cpus']} cpus, jax {meta['jax']}, {args.dtype}); wrote {args.out}")
     return 0

@@ -27,8 +27,15 @@ import numpy as np
 
 INTERNAL_NAMES = {"lam": "lambda"}
 UNITS = {
-    "t_s": "s", "x_m": "m", "v_m_s": "m/s", "J": "-", "mu_pa_s": "Pa s", "lambda": "-", "active": "bool",
-    "vol0_m3": "m^3 (2D: m^2 per metre of depth)", "mass_kg": "kg (2D: kg per metre of depth)",
+    "t_s": "s",
+    "x_m": "m",
+    "v_m_s": "m/s",
+    "J": "-",
+    "mu_pa_s": "Pa s",
+    "lambda": "-",
+    "active": "bool",
+    "vol0_m3": "m^3 (2D: m^2 per metre of depth)",
+    "mass_kg": "kg (2D: kg per metre of depth)",
 }
 
 
@@ -97,8 +104,15 @@ class FrameWriter:
         self.g.create_dataset("t_s", shape=(0,), maxshape=(None,), dtype="f8")
         for name, shp in self.fields.items():
             dt = "u1" if name == "active" else "f4"
-            self.g.create_dataset(name, shape=(0,) + shp, maxshape=(None,) + shp, dtype=dt, chunks=(1,) + shp,
-                                  compression="gzip", compression_opts=1)
+            self.g.create_dataset(
+                name,
+                shape=(0,) + shp,
+                maxshape=(None,) + shp,
+                dtype=dt,
+                chunks=(1,) + shp,
+                compression="gzip",
+                compression_opts=1,
+            )
         self.n = 0
 
     def append(self, state):

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import itertools
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -46,16 +45,20 @@ def _wsum(w, v):
 
 def _outer_sum(a, b):
     """(n, s, i) x (n, s, j) -> (n, i, j)."""
-    rows = [jnp.stack([jnp.sum(a[:, :, i] * b[:, :, j], axis=1) for j in range(b.shape[-1])], axis=-1)
-            for i in range(a.shape[-1])]
+    rows = [
+        jnp.stack([jnp.sum(a[:, :, i] * b[:, :, j], axis=1) for j in range(b.shape[-1])], axis=-1)
+        for i in range(a.shape[-1])
+    ]
     return jnp.stack(rows, axis=1)
 
 
 def _mm(A, B):
     """(n, i, k) x (n, k, j) -> (n, i, j)."""
     d = A.shape[-1]
-    rows = [jnp.stack([sum(A[:, i, k] * B[:, k, j] for k in range(d)) for j in range(B.shape[-1])], axis=-1)
-            for i in range(A.shape[1])]
+    rows = [
+        jnp.stack([sum(A[:, i, k] * B[:, k, j] for k in range(d)) for j in range(B.shape[-1])], axis=-1)
+        for i in range(A.shape[1])
+    ]
     return jnp.stack(rows, axis=1)
 
 

@@ -72,13 +72,20 @@ def _one(overrides: dict, scene="dambreak-lab") -> dict:
     final, frames = run(s.scene, s.state, s.params)
     jax.block_until_ready(final.x)
     wall = time.perf_counter() - t0
-    ro = np.asarray(runout(frames.x, frames.active, s.info["runout_axis"], s.info["runout_origin_m"],
-                           s.info["particle_spacing_m"]))
+    ro = np.asarray(
+        runout(frames.x, frames.active, s.info["runout_axis"], s.info["runout_origin_m"], s.info["particle_spacing_m"])
+    )
     finite = bool(np.all(np.isfinite(np.asarray(final.x))))
     return {
-        "overrides": overrides, "runout_15s_m": float(ro[-1]), "runout_1s_m": float(ro[max(0, round(len(ro) / 15) - 1)]),
-        "n_lost": int(final.n_lost), "finite": finite, "dt_s": s.scene.dt, "n_steps": s.scene.n_steps,
-        "n_particles": s.scene.n_particles, "wall_s_incl_compile": wall,
+        "overrides": overrides,
+        "runout_15s_m": float(ro[-1]),
+        "runout_1s_m": float(ro[max(0, round(len(ro) / 15) - 1)]),
+        "n_lost": int(final.n_lost),
+        "finite": finite,
+        "dt_s": s.scene.dt,
+        "n_steps": s.scene.n_steps,
+        "n_particles": s.scene.n_particles,
+        "wall_s_incl_compile": wall,
         "mu_max_reached_pa_s": float(np.max(np.asarray(final.mu))),
     }
 
@@ -91,22 +98,29 @@ def study_physical(out: Path, log) -> dict:
             r = _one(ov)
             r.update(run=run_id, shear_measure=measure, thesis_direction=expect)
             rows.append(r)
-            log(f"{measure:8s} {run_id:5s} runout {r['runout_15s_m']:.3f} m lost {r['n_lost']} ({r['wall_s_incl_compile']:.0f} s)")
+            log(
+                f"{measure:8s} {run_id:5s} runout {r['runout_15s_m']:.3f} m lost {r['n_lost']} "
+                f"({r['wall_s_incl_compile']:.0f} s)"
+            )
     base = {r["shear_measure"]: r["runout_15s_m"] for r in rows if r["run"] == "BASE"}
     for r in rows:
         d = r["runout_15s_m"] - base[r["shear_measure"]]
         r["delta_vs_base_m"] = d
         r["direction"] = 0 if abs(d) < 0.01 * base[r["shear_measure"]] else int(math.copysign(1, d))
         r["matches_thesis"] = None if r["thesis_direction"] is None else r["direction"] == r["thesis_direction"]
-    md = ["| run | change | runout standard (m) | dir | runout thesis measure (m) | dir | thesis direction |",
-          "|---|---|---|---|---|---|---|"]
+    md = [
+        "| run | change | runout standard (m) | dir | runout thesis measure (m) | dir | thesis direction |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for run_id, ov, expect in TABLE8:
         rs = [r for r in rows if r["run"] == run_id]
         a, b = rs[0], rs[1]
         ch = ", ".join(f"{k.split('.')[1]}={v:g}" for k, v in ov.items()) or "BASE"
         sym = {1: "+", -1: "−", 0: "0", None: "n/a"}
-        md.append(f"| {run_id} | {ch} | {a['runout_15s_m']:.3f} | {sym[a['direction']]} | {b['runout_15s_m']:.3f} | "
-                  f"{sym[b['direction']]} | {sym[expect]} |")
+        md.append(
+            f"| {run_id} | {ch} | {a['runout_15s_m']:.3f} | {sym[a['direction']]} | {b['runout_15s_m']:.3f} | "
+            f"{sym[b['direction']]} | {sym[expect]} |"
+        )
     return {"rows": rows, "markdown": "\n".join(md)}
 
 
@@ -116,17 +130,30 @@ def study_numerical(out: Path, log) -> dict:
         r = _one(ov)
         r.update(run=run_id)
         rows.append(r)
-        log(f"{run_id:14s} runout {r['runout_15s_m']:.3f} m, {r['n_particles']} particles, {r['n_steps']} steps, "
-            f"{r['wall_s_incl_compile']:.0f} s")
+        log(
+            f"{run_id:14s} runout {r['runout_15s_m']:.3f} m, {r['n_particles']} particles, {r['n_steps']} steps, "
+            f"{r['wall_s_incl_compile']:.0f} s"
+        )
     ro = np.array([r["runout_15s_m"] for r in rows])
-    spread = {"min_m": float(ro.min()), "max_m": float(ro.max()), "mean_m": float(ro.mean()),
-              "max_rel_dev_from_mean": float(np.max(np.abs(ro - ro.mean())) / ro.mean())}
-    md = ["| run | particles | steps | dt (s) | runout 15 s (m) | wall (s, incl. compile) |", "|---|---|---|---|---|---|"]
+    spread = {
+        "min_m": float(ro.min()),
+        "max_m": float(ro.max()),
+        "mean_m": float(ro.mean()),
+        "max_rel_dev_from_mean": float(np.max(np.abs(ro - ro.mean())) / ro.mean()),
+    }
+    md = [
+        "| run | particles | steps | dt (s) | runout 15 s (m) | wall (s, incl. compile) |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        md.append(f"| {r['run']} | {r['n_particles']} | {r['n_steps']} | {r['dt_s']:.3g} | {r['runout_15s_m']:.3f} | "
-                  f"{r['wall_s_incl_compile']:.1f} |")
-    md.append(f"\nSpread: {spread['min_m']:.3f}-{spread['max_m']:.3f} m, largest deviation from the mean "
-              f"{100 * spread['max_rel_dev_from_mean']:.1f} %.")
+        md.append(
+            f"| {r['run']} | {r['n_particles']} | {r['n_steps']} | {r['dt_s']:.3g} | {r['runout_15s_m']:.3f} | "
+            f"{r['wall_s_incl_compile']:.1f} |"
+        )
+    md.append(
+        f"\nSpread: {spread['min_m']:.3f}-{spread['max_m']:.3f} m, largest deviation from the mean "
+        f"{100 * spread['max_rel_dev_from_mean']:.1f} %."
+    )
     return {"rows": rows, "spread": spread, "markdown": "\n".join(md)}
 
 
@@ -149,13 +176,19 @@ def study_stiff(out: Path, log, t_end: float = 0.5) -> dict:
         r = _one(ov)
         r.update(method=label, per_simulated_s=r["wall_s_incl_compile"] / t_end)
         rows.append(r)
-        log(f"{label:22s} dt {r['dt_s']:.3g} s, {r['n_steps']} steps, runout({t_end:g} s) {r['runout_15s_m']:.3f} m, "
-            f"{r['wall_s_incl_compile']:.1f} s")
-    md = ["| update | dt (s) | steps | runout at %g s (m) | wall (s) | est. wall for 15 s (s) |" % t_end,
-          "|---|---|---|---|---|---|"]
+        log(
+            f"{label:22s} dt {r['dt_s']:.3g} s, {r['n_steps']} steps, runout({t_end:g} s) {r['runout_15s_m']:.3f} m, "
+            f"{r['wall_s_incl_compile']:.1f} s"
+        )
+    md = [
+        f"| update | dt (s) | steps | runout at {t_end:g} s (m) | wall (s) | est. wall for 15 s (s) |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        md.append(f"| {r['method']} | {r['dt_s']:.3g} | {r['n_steps']} | {r['runout_15s_m']:.3f} | "
-                  f"{r['wall_s_incl_compile']:.1f} | {15 * r['per_simulated_s']:.0f} |")
+        md.append(
+            f"| {r['method']} | {r['dt_s']:.3g} | {r['n_steps']} | {r['runout_15s_m']:.3f} | "
+            f"{r['wall_s_incl_compile']:.1f} | {15 * r['per_simulated_s']:.0f} |"
+        )
     return {"rows": rows, "markdown": "\n".join(md)}
 
 

@@ -11,8 +11,17 @@ def _scene(gate):
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [0.4, 0.2], "cell_size_m": 0.02},
         "numerics": {"dtype": "float64"},
         "time": {"t_end_s": 1.0, "n_frames": 4},
-        "material": {"model": "coussot", "density_kg_m3": 1850.0, "bulk_modulus_pa": 15000.0, "mu0_pa_s": 4.0,
-                     "alpha": 1.0, "T_s": 0.5, "n": 2.5, "lambda0": 1.5, "mu_max_pa_s": 5000.0},
+        "material": {
+            "model": "coussot",
+            "density_kg_m3": 1850.0,
+            "bulk_modulus_pa": 15000.0,
+            "mu0_pa_s": 4.0,
+            "alpha": 1.0,
+            "T_s": 0.5,
+            "n": 2.5,
+            "lambda0": 1.5,
+            "mu_max_pa_s": 5000.0,
+        },
         "gravity": {"g_m_s2": 0.0},
         "bodies": [{"lo_m": [0.04, 0.04], "hi_m": [0.36, 0.16]}],
     }
@@ -44,8 +53,12 @@ def test_without_gate_everything_ages():
 
 
 def test_gate_requires_point_and_normal():
-    raw = {"domain": {"dim": 2, "lo_m": [0, 0], "hi_m": [1, 1], "cell_size_m": 0.1}, "time": {"t_end_s": 1.0},
-           "material": {"density_kg_m3": 1000.0, "bulk_modulus_pa": 1e4}, "bodies": [{"lo_m": [0, 0], "hi_m": [.5, .5]}],
-           "gate": {"point_m": [0.0, 0.0]}}
+    raw = {
+        "domain": {"dim": 2, "lo_m": [0, 0], "hi_m": [1, 1], "cell_size_m": 0.1},
+        "time": {"t_end_s": 1.0},
+        "material": {"density_kg_m3": 1000.0, "bulk_modulus_pa": 1e4},
+        "bodies": [{"lo_m": [0, 0], "hi_m": [0.5, 0.5]}],
+        "gate": {"point_m": [0.0, 0.0]},
+    }
     with pytest.raises(m.SceneError, match="gate"):
         m.validate(raw)

@@ -20,8 +20,13 @@ def _incline(kind, t_end=0.3):
     # plane y = 0.1 + x tan(th), normal into the fluid (-sin th, cos th); open box faces
     raw = {
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [1.0, 0.6], "cell_size_m": 0.02},
-        "boundary": {"x_lo": "open", "x_hi": "open", "y_lo": "open", "y_hi": "open",
-                     "planes": [{"point_m": [0.0, 0.1], "normal": [-math.sin(TH), math.cos(TH)], "type": kind}]},
+        "boundary": {
+            "x_lo": "open",
+            "x_hi": "open",
+            "y_lo": "open",
+            "y_hi": "open",
+            "planes": [{"point_m": [0.0, 0.1], "normal": [-math.sin(TH), math.cos(TH)], "type": kind}],
+        },
         "numerics": {"dtype": "float64", "shape": "gimp"},
         "time": {"t_end_s": t_end, "n_frames": 6},
         "material": {"model": "newtonian", "density_kg_m3": 1000.0, "bulk_modulus_pa": 2e4, "viscosity_pa_s": 1.0},

@@ -8,7 +8,6 @@ import math
 from pathlib import Path
 
 import matplotlib
-import pytest
 
 matplotlib.use("Agg")
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,8 +13,8 @@ def _raw(t_end=0.3, faces=None, body_v=(0.0, 0.0), model=None):
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [0.6, 0.3], "cell_size_m": 0.02},
         "numerics": {"dtype": "float64"},
         "time": {"t_end_s": t_end, "n_frames": 3},
-        "material": model or {"model": "newtonian", "density_kg_m3": 1000.0, "bulk_modulus_pa": 2e4,
-                              "viscosity_pa_s": 1.0},
+        "material": model
+        or {"model": "newtonian", "density_kg_m3": 1000.0, "bulk_modulus_pa": 2e4, "viscosity_pa_s": 1.0},
         "bodies": [{"lo_m": [0.0, 0.0], "hi_m": [0.2, 0.2], "velocity_m_s": list(body_v)}],
     }
     if faces:
@@ -30,8 +30,9 @@ def test_inactive_particles_change_nothing():
     extra = 50
     x = jnp.concatenate([s.state.x, jnp.full((extra, 2), 0.1)])
     sc = s.scene.replace(n_particles=n + extra)
-    st = m.init_state(sc, s.params, x, jnp.concatenate([s.state.vol0, jnp.full((extra,), 1e-4)]),
-                      active=jnp.arange(n + extra) < n)
+    st = m.init_state(
+        sc, s.params, x, jnp.concatenate([s.state.vol0, jnp.full((extra,), 1e-4)]), active=jnp.arange(n + extra) < n
+    )
     out, _ = m.run(sc, st, s.params)
     # active particles: identical to round-off (the inactive ones carry zero mass and zero volume)
     np.testing.assert_allclose(np.asarray(out.x[:n]), np.asarray(ref.x), rtol=0, atol=1e-12)
@@ -56,8 +57,17 @@ def test_particles_leaving_through_an_open_face_are_counted():
 def test_gradients_finite_at_the_viscosity_cap():
     # Coussot BASE parameters with the cap (12 Pa s) below mu(lambda0) = 15.0 Pa s: the block
     # starts at the cap and the collapse destructures part of it below the cap
-    model = {"model": "coussot", "density_kg_m3": 1850.0, "bulk_modulus_pa": 15000.0, "mu0_pa_s": 4.0,
-             "alpha": 1.0, "T_s": 0.5, "n": 2.5, "lambda0": 1.5, "mu_max_pa_s": 12.0}
+    model = {
+        "model": "coussot",
+        "density_kg_m3": 1850.0,
+        "bulk_modulus_pa": 15000.0,
+        "mu0_pa_s": 4.0,
+        "alpha": 1.0,
+        "T_s": 0.5,
+        "n": 2.5,
+        "lambda0": 1.5,
+        "mu_max_pa_s": 12.0,
+    }
     s = m.build(m.validate(_raw(t_end=0.15, model=model)))
 
     def loss(mat):

@@ -23,10 +23,18 @@ def test_builtin_default_scene_is_thesis_base():
     cfg = m.load_scene("dambreak-lab")
     # thesis Table 8 BASE and Annex 2 (mu_max 5000), block 0.2 x 0.2 m in a 2 m enclosure
     assert cfg["material.model"] == "coussot"
-    assert (cfg["material.mu0_pa_s"], cfg["material.n"], cfg["material.alpha"], cfg["material.T_s"],
-            cfg["material.lambda0"]) == (4.0, 2.5, 1.0, 0.5, 1.5)
+    assert (
+        cfg["material.mu0_pa_s"],
+        cfg["material.n"],
+        cfg["material.alpha"],
+        cfg["material.T_s"],
+        cfg["material.lambda0"],
+    ) == (4.0, 2.5, 1.0, 0.5, 1.5)
     assert (cfg["material.bulk_modulus_pa"], cfg["material.density_kg_m3"], cfg["material.mu_max_pa_s"]) == (
-        15000.0, 1850.0, 5000.0)
+        15000.0,
+        1850.0,
+        5000.0,
+    )
     assert cfg["domain.hi_m"][0] - cfg["domain.lo_m"][0] == 2.0
     assert cfg["bodies"][0]["hi_m"] == [0.2, 0.2] and cfg["time.t_end_s"] == 15.0
 
@@ -55,7 +63,7 @@ def test_time_step_respects_both_limits():
         ("domain.cell_size_m=0.03", ["domain.cell_size_m", "whole number"]),
         ("numerics.dt_s=0.1", ["numerics.dt_s", "0.1", "<="]),
         ("time.n_frames=0", ["time.n_frames", ">= 1"]),
-        ('domain.hi_m=[0.1, 0.24]', ["bodies[0]", "outside the domain"]),
+        ("domain.hi_m=[0.1, 0.24]", ["bodies[0]", "outside the domain"]),
         ("material.density_kg_m3=abc", ["material.density_kg_m3", "abc", "number"]),
     ],
 )
@@ -81,12 +89,38 @@ def test_scene_docs_current():
 
 def test_cli_run_writes_results(tmp_path):
     out = tmp_path / "run"
-    rc = cli.main(["run", "dambreak-lab", "--out", str(out), "--quiet", "--set", "time.t_end_s=0.5",
-                   "--set", "time.n_frames=5", "--set", "domain.cell_size_m=0.02"])
+    rc = cli.main(
+        [
+            "run",
+            "dambreak-lab",
+            "--out",
+            str(out),
+            "--quiet",
+            "--set",
+            "time.t_end_s=0.5",
+            "--set",
+            "time.n_frames=5",
+            "--set",
+            "domain.cell_size_m=0.02",
+        ]
+    )
     assert rc == 0
     summ = json.loads((out / "summary.json").read_text())
-    for k in ("scene", "dim", "n_particles", "n_steps", "dt_s", "t_end_s", "wall_s", "particle_steps_per_s",
-              "mass_initial_kg", "mass_final_kg", "times_s", "runout_m", "final_runout_m"):
+    for k in (
+        "scene",
+        "dim",
+        "n_particles",
+        "n_steps",
+        "dt_s",
+        "t_end_s",
+        "wall_s",
+        "particle_steps_per_s",
+        "mass_initial_kg",
+        "mass_final_kg",
+        "times_s",
+        "runout_m",
+        "final_runout_m",
+    ):
         assert k in summ, k
     # mass = rho * block area per metre of depth = 1850 * 0.04 = 74 kg/m (float32 volumes)
     assert summ["mass_initial_kg"] == pytest.approx(74.0, rel=1e-6)
