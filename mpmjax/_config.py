@@ -65,39 +65,70 @@ SCHEMA: dict[str, Key] = {
         "Extra planar walls, e.g. an inclined base: a list of tables with point_m (vec, m), "
         "normal (vec, pointing into the fluid) and type (noslip, slip, symmetry).",
     ),
-    "numerics.shape": Key(str, "gimp", "-", "Shape function (gimp: the thesis's choice; see docs/validation.md for the measured accuracy of each).", choices=tuple(_shapes.STENCIL)),
-    "numerics.transfer": Key(str, "apic", "-", "Particle-grid transfer: APIC or a FLIP/PIC blend.", choices=("apic", "flip")),
-    "numerics.flip_blend": Key(float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0),
+    "numerics.shape": Key(
+        str,
+        "gimp",
+        "-",
+        "Shape function (gimp: the thesis's choice; see docs/validation.md for the measured accuracy of each).",
+        choices=tuple(_shapes.STENCIL),
+    ),
+    "numerics.transfer": Key(
+        str, "apic", "-", "Particle-grid transfer: APIC or a FLIP/PIC blend.", choices=("apic", "flip")
+    ),
+    "numerics.flip_blend": Key(
+        float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0
+    ),
     "numerics.ppc": Key(int, 2, "-", "Particles per cell per axis for seeded bodies.", lo=1, hi=8),
     "numerics.cfl": Key(
         float, 0.4, "-", "Safety factor f of the wave-speed limit dt = f h / (c + |v|).", lo=0.0, lo_open=True, hi=1.0
     ),
     "numerics.viscous_safety": Key(
-        float, 0.5, "-", "Safety factor of the viscous limit dt = f rho h^2/(2 d mu_max) (explicit update only).",
-        lo=0.0, lo_open=True, hi=1.0,
+        float,
+        0.5,
+        "-",
+        "Safety factor of the viscous limit dt = f rho h^2/(2 d mu_max) (explicit update only).",
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
     ),
     "numerics.viscous_update": Key(
-        str, "maxwell", "-", "Deviatoric stress update: exponential Maxwell (stable for any mu) or explicit.",
+        str,
+        "maxwell",
+        "-",
+        "Deviatoric stress update: exponential Maxwell (stable for any mu) or explicit.",
         choices=("maxwell", "explicit"),
     ),
     "numerics.maxwell_shear_modulus_pa": Key(
         float, 0.0, "Pa", "Maxwell regularisation modulus G; 0 means G = bulk modulus.", lo=0.0
     ),
     "numerics.velocity_scale_m_s": Key(
-        float, 0.0, "m/s", "Speed |v| in the wave-speed limit; 0 means sqrt(2 g H) + max initial speed, "
-        "H the height span of the material.", lo=0.0,
+        float,
+        0.0,
+        "m/s",
+        "Speed |v| in the wave-speed limit; 0 means sqrt(2 g H) + max initial speed, "
+        "H the height span of the material.",
+        lo=0.0,
     ),
-    "numerics.dt_s": Key(float, 0.0, "s", "Fixed time step; 0 means from the stability limits. "
-                         "A value above the limit is an error.", lo=0.0),
+    "numerics.dt_s": Key(
+        float,
+        0.0,
+        "s",
+        "Fixed time step; 0 means from the stability limits. A value above the limit is an error.",
+        lo=0.0,
+    ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
     "material.model": Key(str, "newtonian", "-", "Rheology.", choices=tuple(_rheology.MODELS)),
     "material.density_kg_m3": Key(float, _REQ, "kg/m^3", "Reference density rho.", lo=0.0, lo_open=True),
     "material.bulk_modulus_pa": Key(float, _REQ, "Pa", "Bulk modulus kappa of the Tait EOS.", lo=0.0, lo_open=True),
-    "material.viscosity_pa_s": Key(float, 1.0, "Pa s", "Newtonian viscosity, or Bingham plastic viscosity.", lo=0.0, lo_open=True),
+    "material.viscosity_pa_s": Key(
+        float, 1.0, "Pa s", "Newtonian viscosity, or Bingham plastic viscosity.", lo=0.0, lo_open=True
+    ),
     "material.yield_stress_pa": Key(float, 0.0, "Pa", "Yield stress tau_y (Bingham, Herschel-Bulkley).", lo=0.0),
-    "material.bingham_variant": Key(str, "papanastasiou", "-", "Bingham law.", choices=("papanastasiou", "biviscosity")),
+    "material.bingham_variant": Key(
+        str, "papanastasiou", "-", "Bingham law.", choices=("papanastasiou", "biviscosity")
+    ),
     "material.alpha_b": Key(float, 100.0, "-", "Bi-viscosity ratio below yield.", lo=1.0, lo_open=True),
     "material.papanastasiou_m_s": Key(float, 100.0, "s", "Papanastasiou regularisation time m.", lo=0.0, lo_open=True),
     "material.consistency_pa_sn": Key(float, 1.0, "Pa s^n", "Herschel-Bulkley consistency K.", lo=0.0, lo_open=True),
@@ -107,21 +138,42 @@ SCHEMA: dict[str, Key] = {
     "material.T_s": Key(float, 0.5, "s", "Coussot restructuring time T.", lo=0.0, lo_open=True),
     "material.n": Key(float, 2.5, "-", "Coussot exponent n.", lo=0.0, lo_open=True, hi=10.0),
     "material.lambda0": Key(float, 1.5, "-", "Coussot initial structure lambda0.", lo=0.0),
-    "material.mu_max_pa_s": Key(float, 5000.0, "Pa s", "Viscosity cap mu_max (Coussot, Herschel-Bulkley).", lo=0.0, lo_open=True),
-    "material.lambda_integrator": Key(str, "exact", "-", "Structure update: exact exponential, or the thesis's explicit Euler.",
-                                      choices=("exact", "euler")),
-    "material.shear_measure": Key(str, "standard", "-", "standard: sqrt(2 d':d'); thesis: d':d'/4 (eq. 3.8 and Annex 1).",
-                                  choices=("standard", "thesis")),
+    "material.mu_max_pa_s": Key(
+        float, 5000.0, "Pa s", "Viscosity cap mu_max (Coussot, Herschel-Bulkley).", lo=0.0, lo_open=True
+    ),
+    "material.lambda_integrator": Key(
+        str,
+        "exact",
+        "-",
+        "Structure update: exact exponential, or the thesis's explicit Euler.",
+        choices=("exact", "euler"),
+    ),
+    "material.shear_measure": Key(
+        str,
+        "standard",
+        "-",
+        "standard: sqrt(2 d':d'); thesis: d':d'/4 (eq. 3.8 and Annex 1).",
+        choices=("standard", "thesis"),
+    ),
     "gravity.g_m_s2": Key(float, 9.81, "m/s^2", "Magnitude of gravity (acts along -last axis before tilting).", lo=0.0),
-    "gravity.slope_deg": Key(float, 0.0, "deg", "Tilt of gravity about the vertical-x plane: the base slopes down "
-                             "towards +x by this angle.", lo=-89.0, hi=89.0),
+    "gravity.slope_deg": Key(
+        float,
+        0.0,
+        "deg",
+        "Tilt of gravity about the vertical-x plane: the base slopes down towards +x by this angle.",
+        lo=-89.0,
+        hi=89.0,
+    ),
     "gravity.transverse_slope_deg": Key(float, 0.0, "deg", "3D only: tilt towards +y.", lo=-89.0, hi=89.0),
-    "bodies": Key("table-list", _REQ, "-", "Material blocks: tables with type = \"box\", lo_m, hi_m and optional velocity_m_s."),
+    "bodies": Key(
+        "table-list", _REQ, "-", 'Material blocks: tables with type = "box", lo_m, hi_m and optional velocity_m_s.'
+    ),
     "gate.point_m": Key("vec", None, "m", "Aging gate: a point on the plane (optional)."),
     "gate.normal": Key("vec", None, "-", "Aging gate: normal; material ages once (x - point).normal > 0."),
     "output.runout_axis": Key(int, 0, "-", "Axis along which runout is measured.", lo=0, hi=2),
-    "output.runout_origin_m": Key(float, math.nan, "m", "Origin of runout; default: the back (min) of the material "
-                                  "along runout_axis at t = 0."),
+    "output.runout_origin_m": Key(
+        float, math.nan, "m", "Origin of runout; default: the back (min) of the material along runout_axis at t = 0."
+    ),
 }
 
 SECTIONS = {k.split(".")[0] for k in SCHEMA if "." in k}
@@ -152,24 +204,43 @@ def parse_override(text: str) -> tuple[str, Any]:
     key = key.strip()
     try:
         val = tomllib.loads(f"v = {raw.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (ValueError, RecursionError, KeyError):  # TOMLDecodeError, integer too long, deep nesting
         val = raw.strip()
     return key, val
 
 
+def _show(val: Any, limit: int = 120) -> str:
+    """``repr`` for error messages: never raises (huge ints) and is cut to ``limit`` characters."""
+    try:
+        text = repr(val)
+    except Exception:  # e.g. ValueError: int too large for str()  # noqa: BLE001
+        text = f"<{type(val).__name__}>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _to_float(a) -> float:
+    """float(a), with integers too large for a float mapped to +-inf (rejected as non-finite)."""
+    try:
+        return float(a)
+    except OverflowError:
+        return math.inf if a > 0 else -math.inf
+
+
 def _check(key: str, val: Any, spec: Key, dim: int):
     def bad(why):
-        raise SceneError(f"{key} = {val!r} is invalid: {why} ({spec.doc} Unit: {spec.unit})")
+        raise SceneError(f"{key} = {_show(val)} is invalid: {why} ({spec.doc} Unit: {spec.unit})")
 
     if spec.type == "vec":
-        if not isinstance(val, (list, tuple)) or not all(isinstance(a, (int, float)) and not isinstance(a, bool)
-                                                         for a in val):
+        if not isinstance(val, (list, tuple)) or not all(
+            isinstance(a, (int, float)) and not isinstance(a, bool) for a in val
+        ):
             bad(f"expected a list of {dim} numbers")
         if len(val) != dim:
-            bad(f"expected {dim} components for a {dim}D scene")
-        if not all(math.isfinite(a) for a in val):
+            bad(f"expected {dim} components for a {dim}D scene (domain.dim = {dim})")
+        vals = [_to_float(a) for a in val]
+        if not all(math.isfinite(a) for a in vals):
             bad("components must be finite")
-        return [float(a) for a in val]
+        return vals
     if spec.type == "table-list":
         if not isinstance(val, list) or not all(isinstance(a, dict) for a in val):
             bad("expected a list of tables ([[...]] in TOML)")
@@ -177,7 +248,7 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     if spec.type is float:
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             bad("expected a number")
-        val = float(val)
+        val = _to_float(val)
         if not math.isfinite(val) and not (key == "output.runout_origin_m" and math.isnan(val)):
             bad("must be finite")
     elif spec.type is int:
@@ -186,6 +257,8 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     elif spec.type is str:
         if not isinstance(val, str):
             bad("expected a string")
+        if "\x00" in val:
+            bad("must not contain NUL characters")
     if spec.choices is not None and val not in spec.choices:
         bad(f"allowed values: {', '.join(map(str, spec.choices))}")
     if spec.lo is not None and not (isinstance(val, float) and math.isnan(val)):
@@ -199,12 +272,76 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     return val
 
 
+_MAX_PARTICLES = 2**31 - 1
+_F32 = np.finfo(np.float32)
+# float keys that become float32 arrays (material parameters, gravity, positions, velocities)
+_F32_KEYS = tuple(k for k, s in SCHEMA.items() if s.type is float and k.split(".")[0] in ("material", "gravity")) + (
+    "numerics.maxwell_shear_modulus_pa",
+    "domain.cell_size_m",
+    "domain.lo_m",
+    "domain.hi_m",
+    "gate.point_m",
+)
+
+
+def _check_float32_range(out: dict):
+    """With numerics.dtype = float32, every parameter must survive the conversion: no
+    overflow to inf, and no underflow to 0 of a value that must be positive."""
+
+    def check(key, val, positive):
+        a = abs(val)
+        if a > float(_F32.max) or (positive and a < float(_F32.tiny)):
+            raise SceneError(
+                f"{key} = {_show(val)} is invalid with numerics.dtype = float32: allowed magnitude "
+                f'{_F32.tiny:.3g} .. {_F32.max:.3g} (use numerics.dtype = "float64" for more range)'
+            )
+
+    for key in _F32_KEYS:
+        val = out.get(key)
+        if val is None:
+            continue
+        spec = SCHEMA[key]
+        for v in val if isinstance(val, list) else [val]:
+            if not math.isnan(v):
+                check(key, v, spec.lo_open and spec.lo == 0.0)
+    for i, b in enumerate(out["bodies"]):
+        if isinstance(b, dict):
+            for sub in ("lo_m", "hi_m", "velocity_m_s"):
+                v = b.get(sub)
+                if isinstance(v, list):
+                    for a in v:
+                        if isinstance(a, (int, float)) and not isinstance(a, bool):
+                            check(f"bodies[{i}].{sub}", _to_float(a), False)
+
+
+def _usable_normal(nrm) -> bool:
+    with np.errstate(all="ignore"):
+        length = float(np.linalg.norm(np.asarray(nrm, float)))
+    return math.isfinite(length) and length >= np.finfo(float).tiny
+
+
+def _body_particle_count(blo, bhi, dx) -> float:
+    with np.errstate(all="ignore"):
+        counts = np.maximum(np.round((bhi - blo) / dx), 1.0)
+        return float(np.prod(counts))
+
+
 def validate(raw: dict) -> dict:
     """Check a nested scene dict against ``SCHEMA``; returns a flat dict with defaults."""
+    if not isinstance(raw, dict):
+        raise SceneError(f"a scene must be a table of keys (a TOML document), got {_show(raw)}")
+    for sec in sorted(SECTIONS):
+        if sec in raw and not isinstance(raw[sec], dict):
+            raise SceneError(
+                f"{sec} = {_show(raw[sec])} is invalid: expected a table ([{sec}] in TOML) "
+                f"with keys {', '.join(k for k in SCHEMA if k.startswith(sec + '.'))}"
+            )
     flat = _flatten(raw)
-    unknown = sorted(k for k in flat if k not in SCHEMA)
+    unknown = sorted(str(k) for k in flat if k not in SCHEMA)
     if unknown:
-        raise SceneError(f"unknown key(s): {', '.join(unknown)}. Known keys: see `mpmjax scenes --keys` or docs/scenes.md")
+        raise SceneError(
+            f"unknown key(s): {', '.join(unknown)}. Known keys: see `mpmjax scenes --keys` or docs/scenes.md"
+        )
     dim = flat.get("domain.dim", 2)
     dim = _check("domain.dim", dim, SCHEMA["domain.dim"], 2)
     out = {}
@@ -215,55 +352,103 @@ def validate(raw: dict) -> dict:
             raise SceneError(f"missing required key {key} ({spec.doc} Unit: {spec.unit})")
         else:
             out[key] = copy.deepcopy(spec.default)
+    if out["numerics.dtype"] == "float32":
+        _check_float32_range(out)
     lo, hi = np.asarray(out["domain.lo_m"]), np.asarray(out["domain.hi_m"])
     if np.any(hi <= lo):
-        raise SceneError(f"domain.hi_m = {out['domain.hi_m']} must exceed domain.lo_m = {out['domain.lo_m']} on every axis")
+        raise SceneError(
+            f"domain.hi_m = {out['domain.hi_m']} must exceed domain.lo_m = {out['domain.lo_m']} on every axis"
+        )
     h = out["domain.cell_size_m"]
-    ncell = (hi - lo) / h
+    with np.errstate(all="ignore"):
+        size = hi - lo
+        ncell = size / h
+        n_total = float(np.prod(np.round(ncell) + 7))
+    if not np.all(np.isfinite(size)):
+        raise SceneError(
+            f"domain.lo_m = {out['domain.lo_m']}, domain.hi_m = {out['domain.hi_m']}: the domain size "
+            "overflows a float; allowed: a finite size on every axis"
+        )
+    if not math.isfinite(n_total) or n_total > 5e7:
+        n_cells = float(np.prod(np.round(ncell))) if math.isfinite(n_total) else math.inf
+        raise SceneError(
+            f"domain.cell_size_m = {h} gives {n_cells:.4g} cells for the domain size {list(size)} m; "
+            "the limit is 5e7 (including the ghost layers)"
+        )
     if np.any(ncell < 1) or np.any(np.abs(ncell - np.round(ncell)) > 1e-6 * np.maximum(ncell, 1)):
         raise SceneError(
-            f"domain.cell_size_m = {h} must divide the domain size {list(hi - lo)} into a whole number (>= 1) of cells"
+            f"domain.cell_size_m = {h} must divide the domain size {list(size)} into a whole number (>= 1) of cells"
         )
-    if np.prod(np.round(ncell) + 7) > 5e7:
-        raise SceneError(f"domain.cell_size_m = {h} gives {int(np.prod(np.round(ncell)))} cells; the limit is 5e7")
     if dim == 2 and any(k.startswith("boundary.z") for k in flat):
         raise SceneError("boundary.z_lo / boundary.z_hi are only valid in 3D scenes (domain.dim = 3)")
     if not out["bodies"]:
         raise SceneError("bodies = [] is invalid: at least one material body is required")
+    n_particles = 0
     for i, b in enumerate(out["bodies"]):
         extra = set(b) - {"type", "lo_m", "hi_m", "velocity_m_s"}
         if extra:
-            raise SceneError(f"bodies[{i}]: unknown key(s) {sorted(extra)}; allowed: type, lo_m, hi_m, velocity_m_s")
-        if b.get("type", "box") != "box":
-            raise SceneError(f"bodies[{i}].type = {b.get('type')!r} is invalid: allowed values: box")
+            raise SceneError(
+                f"bodies[{i}]: unknown key(s) {sorted(map(str, extra))}; allowed: type, lo_m, hi_m, velocity_m_s"
+            )
+        if not isinstance(b.get("type", "box"), str) or b.get("type", "box") != "box":
+            raise SceneError(f"bodies[{i}].type = {_show(b.get('type'))} is invalid: allowed values: box")
         vspec = Key("vec", None, "m", "body corner")
         blo = np.asarray(_check(f"bodies[{i}].lo_m", b.get("lo_m"), vspec, dim))
         bhi = np.asarray(_check(f"bodies[{i}].hi_m", b.get("hi_m"), vspec, dim))
-        _check(f"bodies[{i}].velocity_m_s", b.get("velocity_m_s", [0.0] * dim), Key("vec", None, "m/s", "velocity"), dim)
+        _check(
+            f"bodies[{i}].velocity_m_s", b.get("velocity_m_s", [0.0] * dim), Key("vec", None, "m/s", "velocity"), dim
+        )
         if np.any(bhi <= blo):
             raise SceneError(f"bodies[{i}]: hi_m = {list(bhi)} must exceed lo_m = {list(blo)} on every axis")
         if np.any(blo < lo - 1e-9) or np.any(bhi > hi + 1e-9):
             raise SceneError(
-                f"bodies[{i}] = [{list(blo)}, {list(bhi)}] lies outside the domain [{list(lo)}, {list(hi)}] (m)"
+                f"bodies[{i}] = [{list(blo)}, {list(bhi)}] lies outside the domain "
+                f"[domain.lo_m, domain.hi_m] = [{list(lo)}, {list(hi)}] (m)"
             )
+        n_particles += _body_particle_count(blo, bhi, h / out["numerics.ppc"])
+    if n_particles > _MAX_PARTICLES:
+        raise SceneError(
+            f"bodies: {n_particles:.4g} particles at numerics.ppc = {out['numerics.ppc']} per cell and "
+            f"domain.cell_size_m = {h}; the limit is {_MAX_PARTICLES} (int32 particle indices)"
+        )
     for i, p in enumerate(out["boundary.planes"]):
         extra = set(p) - {"point_m", "normal", "type"}
         if extra:
-            raise SceneError(f"boundary.planes[{i}]: unknown key(s) {sorted(extra)}; allowed: point_m, normal, type")
+            raise SceneError(
+                f"boundary.planes[{i}]: unknown key(s) {sorted(map(str, extra))}; allowed: point_m, normal, type"
+            )
         _check(f"boundary.planes[{i}].point_m", p.get("point_m"), Key("vec", None, "m", "plane point"), dim)
         nrm = _check(f"boundary.planes[{i}].normal", p.get("normal"), Key("vec", None, "-", "plane normal"), dim)
-        if np.linalg.norm(nrm) == 0:
-            raise SceneError(f"boundary.planes[{i}].normal = {nrm} must be non-zero")
-        _check(f"boundary.planes[{i}].type", p.get("type", "noslip"), Key(str, None, "-", "wall type", choices=WALL_KINDS), dim)
+        if not _usable_normal(nrm):
+            raise SceneError(
+                f"boundary.planes[{i}].normal = {nrm} is invalid: allowed: a non-zero vector whose "
+                "length is a finite, normal float"
+            )
+        _check(
+            f"boundary.planes[{i}].type",
+            p.get("type", "noslip"),
+            Key(str, None, "-", "wall type", choices=WALL_KINDS),
+            dim,
+        )
     if (out["gate.point_m"] is None) != (out["gate.normal"] is None):
         raise SceneError("gate.point_m and gate.normal must be given together")
+    if out["gate.normal"] is not None and not _usable_normal(out["gate.normal"]):
+        raise SceneError(
+            f"gate.normal = {out['gate.normal']} is invalid: allowed: a non-zero vector whose "
+            "length is a finite, normal float"
+        )
     if out["output.runout_axis"] >= dim:
-        raise SceneError(f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1}")
+        raise SceneError(
+            f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1} "
+            f"(domain.dim = {dim})"
+        )
     for ax in range(dim):
         lo_k, hi_k = out[f"boundary.{'xyz'[ax]}_lo"], out[f"boundary.{'xyz'[ax]}_hi"]
         if (lo_k == "periodic") != (hi_k == "periodic"):
-            raise SceneError(f"boundary.{'xyz'[ax]}_lo = {lo_k!r}, boundary.{'xyz'[ax]}_hi = {hi_k!r}: "
-                             "periodic must be set on both faces of an axis")
+            raise SceneError(
+                f"boundary.{'xyz'[ax]}_lo = {lo_k!r}, boundary.{'xyz'[ax]}_hi = {hi_k!r}: "
+                "periodic must be set on both faces of an axis"
+            )
     return out
 
 
@@ -277,10 +462,18 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
     else:
         path = Path(name)
         if not path.is_file():
-            raise SceneError(f"scene {name!r} is neither a built-in scene ({', '.join(sorted(scenes))}) nor a TOML file")
+            raise SceneError(
+                f"scene {name!r} is neither a built-in scene ({', '.join(sorted(scenes))}) nor a TOML file"
+            )
     try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: not a UTF-8 text file (TOML must be UTF-8): {e}") from None
+    except OSError as e:
+        raise SceneError(f"{path}: cannot be read: {e}") from None
+    try:
+        raw = tomllib.loads(text)
+    except (ValueError, RecursionError) as e:  # TOMLDecodeError; ValueError: integer too long; deep nesting
         raise SceneError(f"{path}: not valid TOML: {e}") from None
     items = overrides.items() if isinstance(overrides, dict) else [parse_override(o) for o in (overrides or [])]
     for key, val in items:
@@ -310,18 +503,30 @@ def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
         mat = _rheology.NewtonianParams(mu=a("material.viscosity_pa_s"), **base)
     elif model == "bingham":
         mat = _rheology.BinghamParams(
-            mu=a("material.viscosity_pa_s"), tau_y=a("material.yield_stress_pa"),
-            alpha_b=a("material.alpha_b"), m=a("material.papanastasiou_m_s"), **base,
+            mu=a("material.viscosity_pa_s"),
+            tau_y=a("material.yield_stress_pa"),
+            alpha_b=a("material.alpha_b"),
+            m=a("material.papanastasiou_m_s"),
+            **base,
         )
     elif model == "herschel_bulkley":
         mat = _rheology.HerschelBulkleyParams(
-            tau_y=a("material.yield_stress_pa"), K=a("material.consistency_pa_sn"), n_hb=a("material.flow_index"),
-            m=a("material.papanastasiou_m_s"), mu_max=a("material.mu_max_pa_s"), **base,
+            tau_y=a("material.yield_stress_pa"),
+            K=a("material.consistency_pa_sn"),
+            n_hb=a("material.flow_index"),
+            m=a("material.papanastasiou_m_s"),
+            mu_max=a("material.mu_max_pa_s"),
+            **base,
         )
     else:
         mat = _rheology.CoussotParams(
-            mu0=a("material.mu0_pa_s"), alpha=a("material.alpha"), T=a("material.T_s"), n=a("material.n"),
-            lambda0=a("material.lambda0"), mu_max=a("material.mu_max_pa_s"), **base,
+            mu0=a("material.mu0_pa_s"),
+            alpha=a("material.alpha"),
+            T=a("material.T_s"),
+            n=a("material.n"),
+            lambda0=a("material.lambda0"),
+            mu_max=a("material.mu_max_pa_s"),
+            **base,
         )
     g = cfg["gravity.g_m_s2"]
     th = math.radians(cfg["gravity.slope_deg"])
@@ -388,19 +593,67 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
     h, dim = cfg["domain.cell_size_m"], cfg["domain.dim"]
     maxwell = cfg["numerics.viscous_update"] == "maxwell"
     G = (cfg["numerics.maxwell_shear_modulus_pa"] or kappa) if maxwell else 0.0
-    c = math.sqrt((kappa + 4.0 / 3.0 * G) / rho)
-    vscale = cfg["numerics.velocity_scale_m_s"]
-    if vscale == 0.0:
-        H = float(np.ptp(x[:, -1])) + h / cfg["numerics.ppc"]
-        vscale = math.sqrt(2.0 * cfg["gravity.g_m_s2"] * H) + float(np.max(np.linalg.norm(v, axis=1), initial=0.0))
-    dt_wave = cfg["numerics.cfl"] * h / (c + vscale)
-    mu_max = float(rheology.max_viscosity(mat))
-    dt_visc = cfg["numerics.viscous_safety"] * rho * h * h / (2.0 * dim * mu_max)
+    # numpy float64 arithmetic: extreme (validated) inputs give inf / 0 / nan instead of
+    # raising; build() rejects a limit that is not a positive finite number.
+    f64 = np.float64
+    with np.errstate(all="ignore"):
+        c = float(np.sqrt((f64(kappa) + f64(4.0 / 3.0) * f64(G)) / f64(rho)))
+        vscale = cfg["numerics.velocity_scale_m_s"]
+        if vscale == 0.0:
+            H = float(np.ptp(x[:, -1])) + h / cfg["numerics.ppc"]
+            vscale = float(
+                np.sqrt(f64(2.0) * f64(cfg["gravity.g_m_s2"]) * f64(H))
+                + np.max(np.linalg.norm(np.asarray(v, float), axis=1), initial=0.0)
+            )
+        dt_wave = float(f64(cfg["numerics.cfl"]) * f64(h) / (f64(c) + f64(vscale)))
+        mu_max = float(rheology.max_viscosity(mat))
+        dt_visc = float(
+            f64(cfg["numerics.viscous_safety"]) * f64(rho) * f64(h) * f64(h) / (f64(2.0 * dim) * f64(mu_max))
+        )
     limit = dt_wave if maxwell else min(dt_wave, dt_visc)
     return {
-        "dt_wave_s": dt_wave, "dt_viscous_s": dt_visc, "dt_limit_s": limit, "wave_speed_m_s": c,
-        "velocity_scale_m_s": vscale, "maxwell_G_pa": G, "mu_max_pa_s": mu_max,
+        "dt_wave_s": dt_wave,
+        "dt_viscous_s": dt_visc,
+        "dt_limit_s": limit,
+        "wave_speed_m_s": c,
+        "velocity_scale_m_s": vscale,
+        "maxwell_G_pa": G,
+        "mu_max_pa_s": mu_max,
     }
+
+
+_MAX_STEPS_PER_FRAME = 2**31 - 1  # scan length of one frame
+
+
+def _dt_inputs(cfg: dict, lim: dict) -> str:
+    keys = [
+        "numerics.dt_s",
+        "domain.cell_size_m",
+        "numerics.cfl",
+        "material.density_kg_m3",
+        "material.bulk_modulus_pa",
+        "numerics.maxwell_shear_modulus_pa",
+        "numerics.velocity_scale_m_s",
+        "gravity.g_m_s2",
+    ]
+    text = ", ".join(f"{k} = {cfg[k]!r}" for k in keys)
+    text += f", bodies velocity_m_s (velocity scale {lim['velocity_scale_m_s']!r} m/s)"
+    if cfg["numerics.viscous_update"] == "explicit":
+        visc = {
+            "newtonian": ["material.viscosity_pa_s"],
+            "bingham": [
+                "material.viscosity_pa_s",
+                "material.yield_stress_pa",
+                "material.papanastasiou_m_s",
+                "material.alpha_b",
+            ],
+        }.get(cfg["material.model"], ["material.mu_max_pa_s"])
+        text += (
+            f", numerics.viscous_safety = {cfg['numerics.viscous_safety']!r}, "
+            + ", ".join(f"{k} = {cfg[k]!r}" for k in visc)
+            + f" (material.model = {cfg['material.model']!r}: mu_max = {lim['mu_max_pa_s']!r} Pa s)"
+        )
+    return text
 
 
 def build(cfg: dict) -> Setup:
@@ -413,6 +666,12 @@ def build(cfg: dict) -> Setup:
     lim = time_step_limits(cfg, params, x, v, rheology)
     t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
     dt_req = cfg["numerics.dt_s"]
+    if not (math.isfinite(lim["dt_limit_s"]) and lim["dt_limit_s"] > 0.0):
+        raise SceneError(
+            f"the stable time step is {lim['dt_limit_s']!r} s (wave-speed limit {lim['dt_wave_s']!r} s, viscous limit "
+            f"{lim['dt_viscous_s']!r} s), not a positive finite number; allowed: inputs that give one: "
+            f"{_dt_inputs(cfg, lim)}"
+        )
     if dt_req > 0.0:
         if dt_req > lim["dt_limit_s"] * (1 + 1e-9):
             raise SceneError(
@@ -422,7 +681,15 @@ def build(cfg: dict) -> Setup:
         dt_target = dt_req
     else:
         dt_target = lim["dt_limit_s"]
-    spf = max(1, math.ceil(t_end / n_frames / dt_target - 1e-9))
+    with np.errstate(all="ignore"):
+        spf_f = float(np.float64(t_end) / np.float64(n_frames) / np.float64(dt_target))
+    if not math.isfinite(spf_f) or spf_f > _MAX_STEPS_PER_FRAME:
+        raise SceneError(
+            f"time.t_end_s = {t_end} with time.n_frames = {n_frames} needs {spf_f:.4g} steps per frame of "
+            f"dt = {dt_target:.4g} s; allowed: at most {_MAX_STEPS_PER_FRAME} steps per frame (shorten time.t_end_s, "
+            f"raise time.n_frames, or change the inputs of the time step: {_dt_inputs(cfg, lim)})"
+        )
+    spf = max(1, math.ceil(spf_f - 1e-9))
     dt = t_end / (n_frames * spf)
     lo, hi = np.asarray(cfg["domain.lo_m"]), np.asarray(cfg["domain.hi_m"])
     faces = [(cfg[f"boundary.{'xyz'[a]}_lo"], cfg[f"boundary.{'xyz'[a]}_hi"]) for a in range(dim)]
@@ -446,20 +713,42 @@ def build(cfg: dict) -> Setup:
     if cfg["gate.point_m"] is not None:
         gate = Gate(tuple(cfg["gate.point_m"]), tuple(cfg["gate.normal"]))
     scene = Scene(
-        dim=dim, h=float(h), lo=tuple(map(float, lo)), hi=tuple(map(float, hi)), periodic=periodic,
-        grid_origin=origin, grid_shape=shape, walls=tuple(walls), shape=cfg["numerics.shape"],
-        lp_cells=0.5 / cfg["numerics.ppc"], transfer=cfg["numerics.transfer"], flip_blend=cfg["numerics.flip_blend"],
-        rheology=rheology, shear_measure=cfg["material.shear_measure"], viscous_update=cfg["numerics.viscous_update"],
+        dim=dim,
+        h=float(h),
+        lo=tuple(map(float, lo)),
+        hi=tuple(map(float, hi)),
+        periodic=periodic,
+        grid_origin=origin,
+        grid_shape=shape,
+        walls=tuple(walls),
+        shape=cfg["numerics.shape"],
+        lp_cells=0.5 / cfg["numerics.ppc"],
+        transfer=cfg["numerics.transfer"],
+        flip_blend=cfg["numerics.flip_blend"],
+        rheology=rheology,
+        shear_measure=cfg["material.shear_measure"],
+        viscous_update=cfg["numerics.viscous_update"],
         maxwell_G=float(lim["maxwell_G_pa"]) if lim["maxwell_G_pa"] else float(params.material.kappa),
-        dt=float(dt), steps_per_frame=int(spf), n_frames=int(n_frames), n_particles=int(len(x)), gate=gate, dtype=dtype,
+        dt=float(dt),
+        steps_per_frame=int(spf),
+        n_frames=int(n_frames),
+        n_particles=int(len(x)),
+        gate=gate,
+        dtype=dtype,
     )
     state = init_state(scene, params, x, vol0, v)
     axis = cfg["output.runout_axis"]
     origin_r = cfg["output.runout_origin_m"]
     if math.isnan(origin_r):
         origin_r = float(min(b["lo_m"][axis] for b in cfg["bodies"]))
-    info = dict(lim, dt_s=float(dt), n_steps=scene.n_steps, runout_axis=axis, runout_origin_m=origin_r,
-                particle_spacing_m=h / cfg["numerics.ppc"])
+    info = dict(
+        lim,
+        dt_s=float(dt),
+        n_steps=scene.n_steps,
+        runout_axis=axis,
+        runout_origin_m=origin_r,
+        particle_spacing_m=h / cfg["numerics.ppc"],
+    )
     return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
 
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -81,6 +80,7 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
     from ._io import FrameWriter, atomic_write_text, plot_result, read_result
     from ._observables import runout
     from ._simulate import make_advance
+    from ._xdmf import write_xdmf
 
     cfg = load_scene(scene, overrides)
     setup = build(cfg)
@@ -119,14 +119,17 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
             fronts.append(front(state))
             lost = int(state.n_lost)
             if lost > lost_reported:
-                log(f"\nwarning: {lost - lost_reported} particle(s) left the grid or became non-finite by "
+                log(
+                    f"\nwarning: {lost - lost_reported} particle(s) left the grid or became non-finite by "
                     f"t = {float(state.t):.3f} s (frame {i + 1}); they were deactivated and are counted in "
-                    "summary.json n_lost")
+                    "summary.json n_lost"
+                )
                 lost_reported = lost
             if prog:
                 prog.update(i + 1, f"t = {float(state.t):7.3f} s, runout {fronts[-1]:.3f} m,")
         complete = True
     wall = time.perf_counter() - t_run
+    write_xdmf(out / "result.h5")  # result.xdmf: ParaView / VisIt sidecar of the closed result.h5
     mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
     summary = {
         "scene": cfg["name"],
@@ -149,8 +152,18 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
             f"max over active particles of x[{axis}] + half the initial particle spacing ({spacing / 2:g} m), "
             f"minus runout_origin_m = {origin:g} m"
         ),
-        "dt_limits": {k: info[k] for k in ("dt_wave_s", "dt_viscous_s", "dt_limit_s", "wave_speed_m_s",
-                                           "velocity_scale_m_s", "maxwell_G_pa", "mu_max_pa_s")},
+        "dt_limits": {
+            k: info[k]
+            for k in (
+                "dt_wave_s",
+                "dt_viscous_s",
+                "dt_limit_s",
+                "wave_speed_m_s",
+                "velocity_scale_m_s",
+                "maxwell_G_pa",
+                "mu_max_pa_s",
+            )
+        },
         "grid_shape": list(sc.grid_shape),
         "cell_size_m": sc.h,
         "code_version": __version__,
@@ -160,9 +173,11 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     res = read_result(out / "result.h5")
     plot_result(out / "result.png", res["frames"], summary, cfg["name"])
-    log(f"wrote {out / 'result.h5'}, {out / 'summary.json'}, {out / 'result.png'}")
-    log(f"final runout {summary['final_runout_m']:.3f} m at t = {sc.t_end:g} s; wall {wall:.1f} s "
-        f"({summary['particle_steps_per_s']:.3g} particle-steps/s); lost particles: {summary['n_lost']}")
+    log(f"wrote {out / 'result.h5'}, {out / 'result.xdmf'}, {out / 'summary.json'}, {out / 'result.png'}")
+    log(
+        f"final runout {summary['final_runout_m']:.3f} m at t = {sc.t_end:g} s; wall {wall:.1f} s "
+        f"({summary['particle_steps_per_s']:.3g} particle-steps/s); lost particles: {summary['n_lost']}"
+    )
     return summary
 
 
@@ -205,7 +220,9 @@ def cmd_study(args) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="mpmjax", description="Differentiable MPM for thixotropic mine tailings (SI units).")
+    p = argparse.ArgumentParser(
+        prog="mpmjax", description="Differentiable MPM for thixotropic mine tailings (SI units)."
+    )
     sub = p.add_subparsers(dest="cmd", required=True)
     ps = sub.add_parser("scenes", help="list the built-in scenes (or, with --keys, every scene key)")
     ps.add_argument("--keys", action="store_true", help="list every scene key with unit, default and range")
@@ -213,7 +230,9 @@ def main(argv=None) -> int:
     pr = sub.add_parser("run", help="run a scene and write result.h5, summary.json and result.png")
     pr.add_argument("scene", nargs="?", default="dambreak-lab", help="built-in scene name or TOML path")
     pr.add_argument("--out", help="output directory (default runs/SCENE)")
-    pr.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key, e.g. material.mu0_pa_s=2")
+    pr.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a scene key, e.g. material.mu0_pa_s=2"
+    )
     pr.add_argument("--quiet", action="store_true", help="no progress output")
     pr.set_defaults(fn=cmd_run)
     try:
