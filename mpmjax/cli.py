@@ -61,7 +61,7 @@ def cmd_scenes(args) -> int:
     import tomllib
 
     for name, path in sorted(builtin_scenes().items()):
-        desc = tomllib.loads(path.read_text()).get("description", "").split(".")[0]
+        desc = tomllib.loads(path.read_text()).get("description", "").split(". ")[0]
         print(f"{name:24s} {desc}")
     return 0
 
