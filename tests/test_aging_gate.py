@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import COUSSOT_BASE
 
 import mpmjax as m
 
@@ -11,17 +12,7 @@ def _scene(gate):
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [0.4, 0.2], "cell_size_m": 0.02},
         "numerics": {"dtype": "float64"},
         "time": {"t_end_s": 1.0, "n_frames": 4},
-        "material": {
-            "model": "coussot",
-            "density_kg_m3": 1850.0,
-            "bulk_modulus_pa": 15000.0,
-            "mu0_pa_s": 4.0,
-            "alpha": 1.0,
-            "T_s": 0.5,
-            "n": 2.5,
-            "lambda0": 1.5,
-            "mu_max_pa_s": 5000.0,
-        },
+        "material": dict(COUSSOT_BASE),
         "gravity": {"g_m_s2": 0.0},
         "bodies": [{"lo_m": [0.04, 0.04], "hi_m": [0.36, 0.16]}],
     }

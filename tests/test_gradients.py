@@ -40,21 +40,12 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from conftest import COUSSOT_BASE
 
 import mpmjax as m
 from calibration.observables import deposited_volume, height_profile, smooth_front
 
-COUSSOT = {
-    "model": "coussot",
-    "density_kg_m3": 1850.0,
-    "bulk_modulus_pa": 15000.0,
-    "mu0_pa_s": 4.0,
-    "alpha": 1.0,
-    "T_s": 0.5,
-    "n": 2.5,
-    "lambda0": 1.5,
-    "mu_max_pa_s": 5000.0,
-}
+COUSSOT = dict(COUSSOT_BASE)
 BINGHAM = {
     "model": "bingham",
     "bingham_variant": "papanastasiou",

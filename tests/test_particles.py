@@ -4,6 +4,7 @@ gradients stay finite when material ages to the viscosity cap."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+from conftest import COUSSOT_BASE
 
 import mpmjax as m
 
@@ -57,17 +58,7 @@ def test_particles_leaving_through_an_open_face_are_counted():
 def test_gradients_finite_at_the_viscosity_cap():
     # Coussot BASE parameters with the cap (12 Pa s) below mu(lambda0) = 15.0 Pa s: the block
     # starts at the cap and the collapse destructures part of it below the cap
-    model = {
-        "model": "coussot",
-        "density_kg_m3": 1850.0,
-        "bulk_modulus_pa": 15000.0,
-        "mu0_pa_s": 4.0,
-        "alpha": 1.0,
-        "T_s": 0.5,
-        "n": 2.5,
-        "lambda0": 1.5,
-        "mu_max_pa_s": 12.0,
-    }
+    model = dict(COUSSOT_BASE, mu_max_pa_s=12.0)
     s = m.build(m.validate(_raw(t_end=0.15, model=model)))
 
     def loss(mat):
