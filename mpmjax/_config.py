@@ -20,6 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -657,9 +658,15 @@ def _dt_inputs(cfg: dict, lim: dict) -> str:
 
 
 def build(cfg: dict) -> Setup:
-    """Validated scene dict -> ``Setup`` (scene, params, initial state, info)."""
+    """Validated scene dict -> ``Setup`` (scene, params, initial state, info).
+
+    A ``float64`` scene switches on ``jax_enable_x64`` (without it JAX would silently
+    truncate every array to float32).
+    """
     dim, h = cfg["domain.dim"], cfg["domain.cell_size_m"]
     dtype = cfg["numerics.dtype"]
+    if dtype == "float64" and not jax.config.jax_enable_x64:
+        jax.config.update("jax_enable_x64", True)
     params = make_params(cfg, dim, dtype)
     rheology = make_rheology(cfg)
     x, vol0, v = seed_bodies(cfg)

@@ -1,4 +1,4 @@
-"""Command line: ``mpmjax scenes | run | rheometer | bench | study``.
+"""Command line: ``mpmjax scenes | run | rheometer | bench | study | calibrate | sweep``.
 
 Exit status: 0 success, 2 invalid input (the message names the key, the value and the
 allowed range), 130 interrupted (frames already written stay readable), 1 other errors.
@@ -252,6 +252,14 @@ def main(argv=None) -> int:
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
     pst.set_defaults(fn=cmd_study)
+    from calibration import cli as calcli
+
+    pc = sub.add_parser("calibrate", help="fit material parameters to measured height profiles (optax, gradients)")
+    calcli.add_calibrate_arguments(pc)
+    pc.set_defaults(fn=calcli.cmd_calibrate)
+    psw = sub.add_parser("sweep", help="run a grid of material parameters as one vmap batch (runout, time to rest)")
+    calcli.add_sweep_arguments(psw)
+    psw.set_defaults(fn=calcli.cmd_sweep)
     args = p.parse_args(argv)
     return args.fn(args)
 

@@ -1,0 +1,251 @@
+"""Experiments and losses: what a calibration compares, and how.
+
+An *experiment* turns material parameters into a vector of normalised residuals
+
+    r_i = (model_i - data_i) / sigma_i
+
+(``residuals(values)``, ``values``: name -> value of the calibrated parameters), and has a
+weight w.  The calibration loss of several experiments fitted jointly is
+
+    L = sum_e w_e mean_i(r_ei^2)
+
+(dimensionless), i.e. each experiment contributes its mean squared normalised misfit,
+so an experiment with many stations does not swamp one with a single runout.
+
+* :class:`ProfileExperiment`: an MPM scene (``mpmjax.build``) against measured height
+  profiles at given times, and optionally a measured runout.  The model height is
+  ``calibration.observables.height_profile`` (Gaussian kernel of bandwidth b, default one
+  cell) at the data stations, at the saved frame nearest to each data time (a data time
+  more than half a frame interval from every frame is an error); the model runout is
+  ``smooth_front``.  sigma: the data's ``sigma_m`` where given, else ``sigma_m`` of the
+  experiment (default: 5 % of the largest measured height, a typical flume-profile
+  scatter); ``sigma_known`` tells the uncertainty analysis whether to trust it or to
+  estimate the noise from the residuals.
+* :class:`FlowCurveExperiment`: steady rheometer flow-curve points (Coussot only),
+  residual (ln tau_model - ln tau_data) / sigma_ln (relative error, default 5 %).
+
+Any experiment works with any parameter set whose names are fields of its material.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from .data import Profile
+from .observables import height_profile, smooth_front
+
+__all__ = ["ProfileExperiment", "FlowCurveExperiment", "restate", "joint_loss", "joint_residuals"]
+
+
+def restate(state, scene, params):
+    """``state`` with the rheology's internal fields (e.g. the Coussot structure lambda =
+    lambda0) and the initial viscosity rebuilt from ``params``, so that parameters that
+    enter only through the initial state (lambda0) are traced.  Everything else (positions,
+    active mask, inflow pool) is kept."""
+    n = state.x.shape[0]
+    dt = state.x.dtype
+    internal = scene.rheology.init_internal(params.material, n)
+    internal = {k: jnp.asarray(a, dt) * jnp.ones((n,), dt) for k, a in internal.items()}
+    mu = scene.rheology.viscosity(params.material, jnp.zeros((n,), dt), internal, 0.0, False)[0]
+    return state._replace(internal=internal, mu=jnp.asarray(mu, dt) * jnp.ones((n,), dt))
+
+
+class ProfileExperiment:
+    """An MPM run compared with measured height profiles (and optionally the runout).
+
+    setup: ``mpmjax.build(...)`` of the experiment's scene (its ``time.n_frames`` sets the
+    frames that data times are matched to); profiles: list of :class:`calibration.data.Profile`
+    (``t_s`` None = the final frame); bandwidth_m: kernel bandwidth b [m] (default: the
+    cell size); sigma_m: profile standard deviation [m] where the data give none (default
+    5 % of the largest measured height; then ``sigma_known`` is False unless set);
+    runout_m / runout_sigma_m: a measured final runout [m] and its standard deviation
+    [m] (default 2 cells), compared with ``smooth_front`` (threshold height
+    ``front_threshold_m``, default 10 % of the largest measured height); weight: w.
+    """
+
+    def __init__(
+        self,
+        setup,
+        profiles: list[Profile],
+        *,
+        bandwidth_m: float | None = None,
+        sigma_m: float | None = None,
+        sigma_known: bool | None = None,
+        runout_m: float | None = None,
+        runout_sigma_m: float | None = None,
+        front_threshold_m: float | None = None,
+        weight: float = 1.0,
+        name: str = "profiles",
+    ):
+        import mpmjax
+
+        if not profiles and runout_m is None:
+            raise ValueError(f"{name}: no profile and no runout to compare with")
+        self.setup, self.name, self.weight = setup, name, float(weight)
+        sc = setup.scene
+        if sc.dim != 2:
+            raise ValueError(f"{name}: profile calibration is implemented for 2D scenes; got dim = {sc.dim}")
+        self.profiles = list(profiles)
+        frame_dt = sc.steps_per_frame * sc.dt
+        self.frame_dt = frame_dt
+        t_end = sc.n_frames * frame_dt
+        idx, offsets = [], []
+        for p in self.profiles:
+            if p.t_s is None:
+                k = sc.n_frames
+            else:
+                k = int(round(p.t_s / frame_dt))
+                if p.t_s > t_end + 0.5 * frame_dt:
+                    raise ValueError(
+                        f"{name}: profile at t_s = {p.t_s:g} s is after the end of the scene's run "
+                        f"(t_end = {t_end:g} s); allowed range: 0 .. {t_end:g} s (set time.t_end_s)"
+                    )
+            idx.append(k)
+            offsets.append(k * frame_dt - (p.t_s if p.t_s is not None else t_end))
+        self.frame_index = tuple(idx)
+        self.time_offsets_s = tuple(offsets)
+        hmax = max([float(np.max(p.h_m)) for p in self.profiles] or [0.0])
+        if self.profiles and hmax <= 0:
+            raise ValueError(f"{name}: every measured height is 0; nothing to fit")
+        self.bandwidth_m = float(sc.h if bandwidth_m is None else bandwidth_m)
+        if not self.bandwidth_m > 0:
+            raise ValueError(f"{name}: bandwidth_m = {bandwidth_m}; allowed range: > 0 [m]")
+        default_sigma = 0.05 * hmax if sigma_m is None else float(sigma_m)
+        if self.profiles and not default_sigma > 0:
+            raise ValueError(f"{name}: sigma_m = {sigma_m}; allowed range: > 0 [m]")
+        self.sigma_known = (
+            (sigma_m is not None or all(p.sigma_m is not None for p in self.profiles))
+            if (sigma_known is None)
+            else bool(sigma_known)
+        )
+        dt = jnp.dtype(sc.dtype)
+        self._x = [jnp.asarray(p.x_m, dt) for p in self.profiles]
+        self._h = [jnp.asarray(p.h_m, dt) for p in self.profiles]
+        self._s = [
+            jnp.asarray(p.sigma_m if p.sigma_m is not None else np.full(p.x_m.shape, default_sigma), dt)
+            for p in self.profiles
+        ]
+        self.runout_m = None if runout_m is None else float(runout_m)
+        self.runout_sigma_m = float(2 * sc.h if runout_sigma_m is None else runout_sigma_m)
+        self.front_threshold_m = float(0.1 * hmax if front_threshold_m is None else front_threshold_m)
+        if self.runout_m is not None and not self.front_threshold_m > 0:
+            raise ValueError(f"{name}: front_threshold_m = {front_threshold_m}; allowed range: > 0 [m]")
+        self.n_frames_needed = max(idx + [sc.n_frames if self.runout_m is not None else 0]) or 1
+        self.n_residuals = sum(int(p.x_m.size) for p in self.profiles) + (self.runout_m is not None)
+        self._mpm = mpmjax
+
+    # -- model -----------------------------------------------------------------------
+    def material(self, values: dict):
+        base = self.setup.params.material
+        dt = jnp.dtype(self.setup.scene.dtype)
+        bad = [k for k in values if k not in type(base)._fields]
+        if bad:
+            raise ValueError(f"{self.name}: {bad} are not fields of {type(base).__name__}")
+        return base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items()})
+
+    def run(self, values: dict):
+        """(initial state, frames) of the run with the material ``values`` (up to the last
+        frame the data need)."""
+        s = self.setup
+        p = s.params._replace(material=self.material(values))
+        st = restate(s.state, s.scene, p)
+        _, fr = self._mpm.simulate(s.scene, st, p, self.n_frames_needed)
+        return st, fr
+
+    def _at(self, st, fr, k):
+        if k == 0:
+            return st.x, st.active
+        return fr.x[k - 1], fr.active[k - 1]
+
+    def model_profiles(self, values: dict):
+        """List of model heights [m] at the data stations and times."""
+        st, fr = self.run(values)
+        out = []
+        for k, x in zip(self.frame_index, self._x, strict=True):
+            xp, act = self._at(st, fr, k)
+            out.append(height_profile(xp, st.vol0, act, x, bandwidth=self.bandwidth_m))
+        return out
+
+    def _front(self, st, fr):
+        sc = self.setup.scene
+        xp, act = self._at(st, fr, self.setup.scene.n_frames)
+        return smooth_front(
+            xp,
+            st.vol0,
+            act,
+            threshold_height=self.front_threshold_m,
+            bandwidth=self.bandwidth_m,
+            x_lo=sc.lo[0],
+            x_hi=sc.hi[0],
+            n_grid=max(200, int(4 * (sc.hi[0] - sc.lo[0]) / self.bandwidth_m)),
+        )
+
+    def residuals(self, values: dict):
+        """Normalised residuals (model - data)/sigma: every profile station, then the
+        runout if one is given."""
+        st, fr = self.run(values)
+        r = []
+        for k, x, h, s in zip(self.frame_index, self._x, self._h, self._s, strict=True):
+            xp, act = self._at(st, fr, k)
+            r.append((height_profile(xp, st.vol0, act, x, bandwidth=self.bandwidth_m) - h) / s)
+        if self.runout_m is not None:
+            r.append(jnp.atleast_1d((self._front(st, fr) - self.runout_m) / self.runout_sigma_m))
+        return jnp.concatenate(r)
+
+
+class FlowCurveExperiment:
+    """Steady rheometer flow curve (Coussot): gamma_dot_1_s (m,) [1/s], tau_pa (m,) [Pa].
+
+    Residual (ln tau_model - ln tau_data) / sigma_ln with sigma_ln the relative standard
+    deviation of tau (default 0.05; ``sigma_known`` False unless given).  The model is
+    ``mpmjax.rheometer.steady_flow_curve``; it depends on alpha and T only through alpha*T.
+    """
+
+    def __init__(self, material, gamma_dot_1_s, tau_pa, *, sigma_ln=None, weight=1.0, name="flow curve"):
+        g = np.asarray(gamma_dot_1_s, float)
+        tau = np.asarray(tau_pa, float)
+        if g.ndim != 1 or g.shape != tau.shape or g.size < 2:
+            raise ValueError(f"{name}: gamma_dot_1_s {g.shape} and tau_pa {tau.shape} must be equal 1-D, >= 2 points")
+        for nm, a in (("gamma_dot_1_s", g), ("tau_pa", tau)):
+            bad = np.flatnonzero(~(np.isfinite(a) & (a > 0)))
+            if bad.size:
+                raise ValueError(f"{name}: {nm}[{bad[0]}] = {a[bad[0]]!r}; allowed range: > 0 and finite")
+        if type(material).__name__ != "CoussotParams":
+            raise ValueError(f"{name}: flow curves are modelled for Coussot material; got {type(material).__name__}")
+        self.base, self.name, self.weight = material, name, float(weight)
+        dt = jnp.result_type(material.mu0)
+        self._g = jnp.asarray(g, dt)
+        self._lt = jnp.log(jnp.asarray(tau, dt))
+        self.sigma_ln = 0.05 if sigma_ln is None else float(sigma_ln)
+        self.sigma_known = sigma_ln is not None
+        self.n_residuals = g.size
+
+    def residuals(self, values: dict):
+        from mpmjax.rheometer import steady_flow_curve
+
+        dt = jnp.result_type(self.base.mu0)
+        mat = self.base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items() if k in type(self.base)._fields})
+        tau, _ = steady_flow_curve(mat, self._g)
+        return (jnp.log(tau) - self._lt) / self.sigma_ln
+
+
+def joint_residuals(experiments, values: dict):
+    """List of residual vectors, one per experiment."""
+    return [e.residuals(values) for e in experiments]
+
+
+def joint_loss(experiments, values: dict):
+    """L = sum_e w_e mean(r_e^2) (dimensionless)."""
+    return sum(
+        e.weight * jnp.mean(r**2) for e, r in zip(experiments, joint_residuals(experiments, values), strict=True)
+    )
+
+
+def check_finite_loss(value, where: str):
+    v = float(value)
+    if not math.isfinite(v):
+        raise FloatingPointError(f"the loss is {v} at {where}: the run produced non-finite heights")
+    return v

@@ -1,0 +1,239 @@
+"""The fit loop: optax (L-BFGS or Adam) on the transformed parameters, multi-start by vmap.
+
+``fit(experiments, pset)`` minimises the joint loss L = sum_e w_e mean(r_e^2) (see
+``calibration.experiments``) over the unconstrained vector z of ``pset``
+(``calibration.params.ParameterSet``).  Every start is one lane of a ``jax.vmap``, so n
+starts cost one compiled update and run as a batch.  The host-side loop (one jitted,
+vmapped update per iteration) shows progress and stops early.
+
+Starts: start 0 is the specified initial guess; start k > 0 multiplies each free
+parameter by exp(s N(0, 1)) (s = ``start_spread``, default ln 2: a factor of 2 at one
+standard deviation), clipped inside its bounds.
+
+Stopping (per start; the loop ends when every start has stopped or ``max_iter``):
+
+* converged: the loss fell by less than ``rtol`` (relative) over the last ``patience``
+  iterations, or the gradient norm in z is below ``gtol``, or the loss is below ``atol``
+  (e.g. an exact synthetic fit);
+* not converged: ``max_iter`` reached first.
+
+Methods: ``lbfgs`` (``optax.lbfgs`` with its zoom line search, the default: the loss is
+smooth and has few parameters, so quasi-Newton steps converge in tens of iterations) and
+``adam`` (``optax.adam(learning_rate)``; robust to kinks, needs more iterations).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .experiments import joint_loss
+
+__all__ = ["FitResult", "fit", "loss_function"]
+
+
+class FitResult(NamedTuple):
+    """Result of :func:`fit`.
+
+    params: best fitted values, name -> float [SI] (free parameters; fixed ones are in
+    ``pset``); loss_initial: loss at the initial guess (start 0); loss_final: loss at
+    ``params``; history: (iterations + 1, n_starts) loss of each start before each
+    iteration and at the end; iterations: iterations run; wall_s: wall time of the loop
+    (compilation included) [s]; compile_s: time of the first iteration [s]; converged:
+    whether the best start met a convergence criterion; reason: which; best_start: its
+    index; starts: initial values per start; finals: fitted values per start;
+    final_losses: final loss per start.
+    """
+
+    params: dict
+    loss_initial: float
+    loss_final: float
+    history: np.ndarray
+    iterations: int
+    wall_s: float
+    compile_s: float
+    converged: bool
+    reason: str
+    best_start: int
+    starts: list
+    finals: list
+    final_losses: np.ndarray
+
+
+def loss_function(experiments, pset):
+    """z -> L (the joint loss of the experiments at the parameters ``pset.theta(z)``)."""
+
+    def loss_z(z):
+        return joint_loss(experiments, pset.values(pset.theta(z)))
+
+    return loss_z
+
+
+def _starts(pset, n_starts, spread, seed, dtype):
+    rng = np.random.default_rng(seed)
+    zs = [np.asarray(pset.z0(dtype))]
+    thetas = [{k: pset.specs[k].init for k in pset.free}]
+    for _ in range(1, n_starts):
+        th = {}
+        for k in pset.free:
+            s = pset.specs[k]
+            v = (
+                s.init * math.exp(spread * rng.standard_normal())
+                if s.init > 0
+                else s.init + spread * rng.standard_normal()
+            )
+            lo = s.lo if s.lo is not None else (0.0 if s.transform == "softplus" else -math.inf)
+            hi = s.hi if s.hi is not None else math.inf
+            # keep a start strictly inside the bounds (1e-3 of the log- or linear range)
+            if s.transform == "log" and s.lo is not None:
+                a, b = math.log(lo), math.log(hi)
+                v = math.exp(min(max(math.log(v), a + 1e-3 * (b - a)), b - 1e-3 * (b - a)))
+            elif math.isfinite(lo) and math.isfinite(hi):
+                v = min(max(v, lo + 1e-3 * (hi - lo)), hi - 1e-3 * (hi - lo))
+            elif math.isfinite(lo):
+                v = max(v, lo + 1e-6 * max(abs(lo), 1.0))
+            th[k] = v
+        thetas.append(th)
+        zs.append(np.asarray(pset.z_of_theta(th, dtype)))
+    return jnp.asarray(np.stack(zs), dtype), thetas
+
+
+def _default_callback(stream=sys.stderr):
+    t0 = time.perf_counter()
+
+    def cb(it, max_iter, losses, best_theta, active):
+        el = time.perf_counter() - t0
+        vals = ", ".join(f"{k}={v:.4g}" for k, v in best_theta.items())
+        stream.write(
+            f"calibrate: iteration {it:4d}/{max_iter} loss {float(np.min(losses)):.4e} "
+            f"({int(np.sum(active))} of {len(losses)} start(s) running) {vals}  elapsed {el:6.1f} s\n"
+        )
+        stream.flush()
+
+    return cb
+
+
+def fit(
+    experiments,
+    pset,
+    *,
+    method: str = "lbfgs",
+    max_iter: int = 100,
+    learning_rate: float = 0.05,
+    rtol: float = 1e-4,
+    gtol: float = 1e-8,
+    atol: float = 0.0,
+    patience: int = 5,
+    n_starts: int = 1,
+    start_spread: float = math.log(2.0),
+    seed: int = 0,
+    progress: Any = True,
+) -> FitResult:
+    """Fit the free parameters of ``pset`` to ``experiments`` (see the module docstring).
+
+    progress: True (a line per iteration on stderr), False, or a callable
+    ``cb(iteration, max_iter, losses, best_theta, running)``.
+    """
+    if method not in ("lbfgs", "adam"):
+        raise ValueError(f"method = {method!r} is invalid; allowed: 'lbfgs' or 'adam'")
+    for nm, v, lo in (("max_iter", max_iter, 1), ("n_starts", n_starts, 1), ("patience", patience, 1)):
+        if int(v) != v or v < lo:
+            raise ValueError(f"{nm} = {v!r} is invalid; allowed range: integer >= {lo}")
+    if not (learning_rate > 0 and math.isfinite(learning_rate)):
+        raise ValueError(f"learning_rate = {learning_rate!r}; allowed range: > 0")
+    dtype = jnp.dtype(experiments[0].setup.scene.dtype) if hasattr(experiments[0], "setup") else jnp.float64
+    loss_z = loss_function(experiments, pset)
+
+    if method == "adam":
+        opt = optax.adam(learning_rate)
+
+        def update(z, s):
+            loss, g = jax.value_and_grad(loss_z)(z)
+            u, s = opt.update(g, s, z)
+            return optax.apply_updates(z, u), s, loss, g
+
+    else:
+        opt = optax.lbfgs()
+        vg = optax.value_and_grad_from_state(loss_z)
+
+        def update(z, s):
+            loss, g = vg(z, state=s)
+            u, ns = opt.update(g, s, z, value=loss, grad=g, value_fn=loss_z)
+            nz = optax.apply_updates(z, u)
+            # a converged line search may return a non-finite step: keep the last iterate
+            ok = jnp.all(jnp.isfinite(nz))
+            nz = jnp.where(ok, nz, z)
+            ns = jax.tree.map(lambda a, b: jnp.where(ok, a, b), ns, s)
+            return nz, ns, loss, g
+
+    vupdate = jax.jit(jax.vmap(update))
+    vloss = jax.jit(jax.vmap(loss_z))
+    z, start_thetas = _starts(pset, int(n_starts), float(start_spread), seed, dtype)
+    state = jax.vmap(opt.init)(z)
+    cb = _default_callback() if progress is True else (progress or None)
+    n = z.shape[0]
+    running = np.ones(n, bool)
+    reason = np.array(["max_iter"] * n, dtype=object)
+    hist = []
+    t0 = time.perf_counter()
+    compile_s = 0.0
+    it = 0
+    for it in range(1, int(max_iter) + 1):
+        z_new, state_new, loss, g = vupdate(z, state)
+        loss = np.asarray(loss)
+        if it == 1:
+            compile_s = time.perf_counter() - t0
+        if not np.all(np.isfinite(loss[running])):
+            bad = int(np.flatnonzero(~np.isfinite(loss) & running)[0])
+            raise FloatingPointError(
+                f"calibration: the loss is {loss[bad]} at start {bad}, iteration {it}, parameters "
+                f"{ {k: float(v) for k, v in pset.theta(z[bad]).items()} }: the run produced non-finite heights"
+            )
+        # frozen starts keep their z (their lanes still compute: vmap has no early exit)
+        keep = jnp.asarray(running)
+        z = jnp.where(keep[:, None], z_new, z)
+        state = jax.tree.map(lambda a, b: jnp.where(keep.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), state_new, state)
+        hist.append(loss)
+        gn = np.asarray(jnp.linalg.norm(g, axis=-1))
+        H = np.asarray(hist)
+        for k in np.flatnonzero(running):
+            if loss[k] <= atol:
+                running[k], reason[k] = False, "atol"
+            elif gn[k] < gtol:
+                running[k], reason[k] = False, "gtol"
+            elif it > patience:
+                old = H[-1 - patience, k]
+                if old - loss[k] <= rtol * abs(old):
+                    running[k], reason[k] = False, "rtol"
+        if cb is not None:
+            b = int(np.argmin(loss))
+            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(z[b]).items()}, running)
+        if not running.any():
+            break
+    final = np.asarray(vloss(z))
+    hist.append(final)
+    wall = time.perf_counter() - t0
+    best = int(np.nanargmin(final))
+    finals = [{k: float(v) for k, v in pset.theta(z[i]).items()} for i in range(n)]
+    return FitResult(
+        params=finals[best],
+        loss_initial=float(hist[0][0]),
+        loss_final=float(final[best]),
+        history=np.asarray(hist),
+        iterations=it,
+        wall_s=wall,
+        compile_s=compile_s,
+        converged=reason[best] != "max_iter",
+        reason=str(reason[best]),
+        best_start=best,
+        starts=start_thetas,
+        finals=finals,
+        final_losses=final,
+    )

@@ -1,0 +1,307 @@
+"""Batched parameter sweeps: every case of a grid of material parameters in one ``vmap``.
+
+``sweep(scene, vary)`` runs the Cartesian product of the values in ``vary`` (material
+parameter name -> values) on one scene.  Cases are run ``chunk`` at a time as a
+``jax.vmap`` batch (padded to a whole chunk by repeating the last case, so there is one
+compilation); with several devices the batch axis is sharded across them with
+``jax.sharding`` (a 1-D mesh named ``batch``), so the same code runs on many GPUs or, under
+``jax.distributed``, many hosts.  Each case gives:
+
+* ``runout_m`` (per saved frame) and ``final_runout_m``: ``mpmjax.runout`` (the farthest
+  active particle plus half a particle spacing, minus the scene's runout origin) [m];
+* ``kinetic_energy_J`` per frame [J; 2D: J per metre of depth] and ``time_to_rest_s``
+  (``mpmjax._metrics.time_to_rest``; NaN if the material has not come to rest);
+* ``n_lost`` particles and the final height profile on ``profile_x_m``.
+
+Only material parameters can vary inside a batch (the scene's grid, time step and
+shape are static).  Every case is validated as a scene (the usual key, value and range
+errors), and the batch uses one time step: the smallest stable step over the cases
+(reported as ``dt_s``), so a stiffer case does not break the batch.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .experiments import restate
+from .observables import height_profile
+
+__all__ = ["FIELD_KEYS", "parse_vary", "sweep", "write_sweep"]
+
+# material field -> scene key (SI units in the key's name)
+FIELD_KEYS = {
+    "rho": "material.density_kg_m3",
+    "kappa": "material.bulk_modulus_pa",
+    "mu": "material.viscosity_pa_s",
+    "tau_y": "material.yield_stress_pa",
+    "alpha_b": "material.alpha_b",
+    "m": "material.papanastasiou_m_s",
+    "K": "material.consistency_pa_sn",
+    "n_hb": "material.flow_index",
+    "mu_max": "material.mu_max_pa_s",
+    "mu0": "material.mu0_pa_s",
+    "alpha": "material.alpha",
+    "T": "material.T_s",
+    "n": "material.n",
+    "lambda0": "material.lambda0",
+}
+
+
+def parse_vary(items) -> dict:
+    """``["n=1.5,2,2.5", "mu0=1,4"]`` -> {"n": [1.5, 2.0, 2.5], "mu0": [1.0, 4.0]} (ValueError
+    naming the item otherwise)."""
+    out = {}
+    for it in items:
+        if "=" not in it:
+            raise ValueError(f"--vary {it!r}: expected NAME=V1,V2,... (e.g. n=1.5,2,2.5)")
+        name, vals = it.split("=", 1)
+        name = name.strip()
+        if name in out:
+            raise ValueError(f"--vary {name} is given twice")
+        try:
+            v = [float(s) for s in vals.split(",") if s.strip()]
+        except ValueError:
+            raise ValueError(f"--vary {it!r}: values must be numbers separated by commas") from None
+        if not v:
+            raise ValueError(f"--vary {it!r}: no values")
+        if not all(math.isfinite(x) for x in v):
+            raise ValueError(f"--vary {it!r}: values must be finite")
+        out[name] = v
+    return out
+
+
+def _cases(vary: dict) -> list[dict]:
+    names = list(vary)
+    return [dict(zip(names, c, strict=True)) for c in itertools.product(*(vary[k] for k in names))]
+
+
+def _default_chunk(scene, n_cases) -> int:
+    """Cases per batch so that the batch's working set stays below a quarter of the
+    machine's memory: per case ~ 16 x (particle state + 3 grid copies) bytes, a generous
+    multiple of the state that XLA keeps live in a step."""
+    item = 8 if scene.dtype == "float64" else 4
+    d = scene.dim
+    per_particle = d + d + d * d + d * d + 6
+    nodes = math.prod(scene.grid_shape)
+    per_case = 16 * item * (scene.n_particles * per_particle + 3 * nodes * (d + 1))
+    try:
+        mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        mem = 4 << 30
+    return int(max(1, min(n_cases, (mem // 4) // per_case)))
+
+
+def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profile_x_m=None, progress=True):
+    """Run every combination of ``vary`` on ``scene`` (built-in name or TOML path) with the
+    scene ``overrides``.  Returns a dict with ``cases`` (list of name -> value), per-case
+    arrays (``final_runout_m``, ``time_to_rest_s``, ``n_lost``, ``runout_m`` (cases, frames),
+    ``kinetic_energy_J``, ``profile_h_m``), ``times_s``, ``profile_x_m``, ``dt_s``, ``chunk``,
+    ``n_devices`` and ``wall_s``.  Raises ``SceneError`` (from ``mpmjax``) for invalid
+    values, ``ValueError`` for names that are not material parameters of the scene."""
+    import mpmjax
+    from mpmjax._config import time_step_limits
+    from mpmjax._metrics import kinetic_energy, time_to_rest
+
+    overrides = list(overrides or [])
+    cfg = mpmjax.load_scene(scene, overrides)
+    setup = mpmjax.build(cfg)
+    fields = type(setup.params.material)._fields
+    for k in vary:
+        if k not in fields:
+            raise ValueError(
+                f"--vary {k}: not a material parameter of scene {cfg['name']!r} ({cfg['material.model']}); "
+                f"allowed: {', '.join(fields)} (only material parameters can vary inside a batch)"
+            )
+    cases = _cases(vary)
+    # validate each case as a scene, and find the stable step of each
+    limits = []
+    for c in cases:
+        ov = overrides + [f"{FIELD_KEYS[k]}={v!r}" for k, v in c.items()]
+        ci = mpmjax.load_scene(scene, ov)
+        pi = mpmjax.make_params(ci, setup.scene.dim, setup.scene.dtype)
+        lim = time_step_limits(ci, pi, np.asarray(setup.state.x), np.asarray(setup.state.v), setup.scene.rheology)
+        limits.append(lim["dt_limit_s"])
+    if min(limits) < setup.scene.dt * (1 - 1e-9):
+        setup = mpmjax.build(mpmjax.load_scene(scene, overrides + [f"numerics.dt_s={min(limits)!r}"]))
+    sc, params, state0 = setup.scene, setup.params, setup.state
+    info = setup.info
+    x_prof = np.linspace(sc.lo[0], sc.hi[0], 101) if profile_x_m is None else np.asarray(profile_x_m, float)
+    axis, origin, spacing = info["runout_axis"], info["runout_origin_m"], info["particle_spacing_m"]
+    dt = jnp.dtype(sc.dtype)
+    xg = jnp.asarray(x_prof, dt)
+
+    def one(mat):
+        p = params._replace(material=mat)
+        st = restate(state0, sc, p)
+        final, fr = mpmjax.simulate(sc, st, p)
+        xs = jnp.concatenate([st.x[None], fr.x])
+        vs = jnp.concatenate([st.v[None], fr.v])
+        act = jnp.concatenate([st.active[None], fr.active])
+        fronts = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
+        ke = kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
+        prof = height_profile(final.x, st.vol0, final.active, xg, bandwidth=sc.h) if sc.dim == 2 else jnp.zeros_like(xg)
+        return fronts, ke, final.n_lost, prof
+
+    n_dev = jax.device_count()
+    n = len(cases)
+    ch = _default_chunk(sc, n) if chunk is None else int(chunk)
+    if ch < 1:
+        raise ValueError(f"chunk = {chunk}; allowed range: >= 1")
+    ch = min(ch, n)
+    ch = int(math.ceil(ch / n_dev) * n_dev)  # whole batches per device
+    batched = jax.jit(jax.vmap(one))
+    sharding = None
+    if n_dev > 1:
+        from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+        sharding = NamedSharding(Mesh(np.array(jax.devices()), ("batch",)), PartitionSpec("batch"))
+    mat0 = params.material
+    cols = {k: np.asarray([c[k] for c in cases], float) for k in vary}
+    results = []
+    t0 = time.perf_counter()
+    n_chunks = math.ceil(n / ch)
+    for b in range(n_chunks):
+        idx = np.arange(b * ch, (b + 1) * ch)
+        idx = np.minimum(idx, n - 1)  # pad with the last case
+        mats = mat0._replace(
+            **{f: jnp.broadcast_to(getattr(mat0, f), (ch,)) for f in mat0._fields},
+        )
+        mats = mats._replace(**{k: jnp.asarray(cols[k][idx], dt) for k in vary})
+        if sharding is not None:
+            mats = jax.device_put(mats, sharding)
+        out = jax.tree.map(np.asarray, batched(mats))
+        results.append(jax.tree.map(lambda a, m=min(ch, n - b * ch): a[:m], out))
+        if progress:
+            el = time.perf_counter() - t0
+            sys.stderr.write(
+                f"sweep: batch {b + 1}/{n_chunks} ({min((b + 1) * ch, n)}/{n} cases) elapsed {el:6.1f} s, "
+                f"left ~{el / (b + 1) * (n_chunks - b - 1):6.1f} s\n"
+            )
+            sys.stderr.flush()
+    wall = time.perf_counter() - t0
+    fronts, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(4))
+    times = np.arange(sc.n_frames + 1) * sc.steps_per_frame * sc.dt
+    rest = np.asarray([time_to_rest(times, k) for k in ke])
+    return {
+        "scene": cfg["name"],
+        "overrides": overrides,
+        "vary": {k: list(v) for k, v in vary.items()},
+        "cases": cases,
+        "times_s": times,
+        "runout_m": fronts,
+        "final_runout_m": fronts[:, -1],
+        "kinetic_energy_J": ke,
+        "time_to_rest_s": rest,
+        "n_lost": lost,
+        "profile_x_m": x_prof,
+        "profile_h_m": prof,
+        "dt_s": sc.dt,
+        "chunk": ch,
+        "n_devices": n_dev,
+        "n_particles": sc.n_particles,
+        "n_steps": sc.n_steps,
+        "wall_s": wall,
+        "dim": sc.dim,
+    }
+
+
+def write_sweep(res: dict, out) -> list[Path]:
+    """Write ``sweep.csv`` (one row per case: varied values, final runout [m], time to rest
+    [s], lost particles), ``sweep.json`` (everything, with per-frame series) and plots
+    (``sweep_runout.png``: final runout against each varied parameter; ``sweep_profiles.png``:
+    final height profiles) to the folder ``out``.  Returns the paths."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mpmjax._io import atomic_write_text
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = list(res["vary"])
+    units = {"runout": "m", "time_to_rest": "s"}
+    lines = [",".join(names + ["final_runout_m", "time_to_rest_s", "n_lost"])]
+    for i, c in enumerate(res["cases"]):
+        lines.append(
+            ",".join(
+                [f"{c[k]:.6g}" for k in names]
+                + [f"{res['final_runout_m'][i]:.6g}", f"{res['time_to_rest_s'][i]:.6g}", str(int(res["n_lost"][i]))]
+            )
+        )
+    atomic_write_text(out / "sweep.csv", "\n".join(lines) + "\n")
+
+    def js(v):
+        if isinstance(v, np.ndarray):
+            return [js(a) for a in v.tolist()] if v.ndim else js(v.item())
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, list):
+            return [js(a) for a in v]
+        if isinstance(v, dict):
+            return {k: js(a) for k, a in v.items()}
+        if isinstance(v, (np.floating, np.integer)):
+            return js(v.item())
+        return v
+
+    doc = {k: js(v) for k, v in res.items()}
+    doc["units"] = {
+        "final_runout_m": "m",
+        "time_to_rest_s": "s",
+        "times_s": "s",
+        "runout_m": "m",
+        "kinetic_energy_J": "J (2D: J per metre of depth)",
+        "profile_x_m": "m",
+        "profile_h_m": "m",
+        "dt_s": "s",
+        "wall_s": "s",
+    }
+    atomic_write_text(out / "sweep.json", json.dumps(doc, indent=1))
+    del units
+    paths = [out / "sweep.csv", out / "sweep.json"]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    for j, k in enumerate(names):
+        ax = axes[0, j]
+        others = [o for o in names if o != k]
+        groups = {}
+        for i, c in enumerate(res["cases"]):
+            groups.setdefault(tuple(c[o] for o in others), []).append(i)
+        for key, ii in groups.items():
+            ii = sorted(ii, key=lambda i: res["cases"][i][k])
+            lab = ", ".join(f"{o}={v:g}" for o, v in zip(others, key, strict=True)) or None
+            ax.plot([res["cases"][i][k] for i in ii], res["final_runout_m"][ii], "o-", label=lab)
+        ax.set_xlabel(k)
+        ax.set_ylabel("final runout [m]")
+        ax.grid(alpha=0.3)
+        if others and len(groups) <= 8:
+            ax.legend(fontsize=7)
+    fig.suptitle(f"{res['scene']}: final runout at t = {res['times_s'][-1]:g} s")
+    fig.tight_layout()
+    fig.savefig(out / "sweep_runout.png", dpi=110)
+    plt.close(fig)
+    paths.append(out / "sweep_runout.png")
+    if res.get("dim", 2) == 2:
+        fig, ax = plt.subplots(figsize=(7, 3.2))
+        for i, c in enumerate(res["cases"]):
+            ax.plot(res["profile_x_m"], res["profile_h_m"][i], lw=1, label=", ".join(f"{k}={c[k]:g}" for k in names))
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("height h [m]")
+        ax.set_title("final height profiles")
+        if len(res["cases"]) <= 12:
+            ax.legend(fontsize=6)
+        fig.tight_layout()
+        fig.savefig(out / "sweep_profiles.png", dpi=110)
+        plt.close(fig)
+        paths.append(out / "sweep_profiles.png")
+    return paths

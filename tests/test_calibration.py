@@ -1,0 +1,327 @@
+"""The calibration package without long MPM runs: data loaders, parameter specs, the fit
+loop and the Gauss-Newton uncertainty on problems with exact answers, the sweep (batched
+equals one-by-one, sharded equals unsharded) and the command-line errors."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import NamedTuple
+
+import h5py
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mpmjax as m
+from calibration.data import DataError, Profile, load_profiles, write_profiles_csv
+from calibration.experiments import FlowCurveExperiment, restate
+from calibration.fit import fit
+from calibration.params import ParameterSet, ParamSpec
+from calibration.sweep import parse_vary, sweep
+from calibration.uncertainty import gauss_newton
+
+ROOT = Path(__file__).resolve().parent.parent
+TWIN = str(ROOT / "data" / "twin-small-dambreak.toml")
+
+
+# ---------------------------------------------------------------------------- data
+def _write(tmp_path, text, name="p.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_csv_profiles_grouped_by_time_with_sigma(tmp_path):
+    p = _write(
+        tmp_path, "# origin: test\nt_s,x_m,h_m,sigma_m\n2,0,0.1,0.01\n1,0,0.2,0.02\n1,0.5,0.1,0.02\n2,0.5,0.05,0.01\n"
+    )
+    profs = load_profiles(p)
+    assert [q.t_s for q in profs] == [1.0, 2.0]
+    np.testing.assert_array_equal(profs[0].h_m, [0.2, 0.1])
+    np.testing.assert_array_equal(profs[1].sigma_m, [0.01, 0.01])
+    # round trip
+    write_profiles_csv(tmp_path / "rt.csv", profs, "round trip")
+    back = load_profiles(tmp_path / "rt.csv")
+    for a, b in zip(profs, back, strict=True):
+        np.testing.assert_allclose(a.h_m, b.h_m)
+        assert a.t_s == b.t_s
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("x_m,h\n0,1\n1,1\n", "unknown column(s) 'h'"),
+        ("x_m,t_s\n0,1\n1,1\n", "missing required column 'h_m'"),
+        ("x_m,h_m\n0,0.1\n1,-0.2\n", "h_m (line 3) = -0.2; allowed range: >= 0"),
+        ("x_m,h_m\n0,0.1\n0,0.2\n", "x_m (line 3) = 0.0 repeats"),
+        ("x_m,h_m\n1,0.1\n0,0.2\n", "decreases"),
+        ("x_m,h_m,sigma_m\n0,0.1,0\n1,0.2,0.1\n", "sigma_m (line 2) = 0.0; allowed range: > 0"),
+        ("x_m,h_m\n0,abc\n1,0.2\n", "'abc' is not a number"),
+        ("x_m,h_m\n0,nan\n1,0.2\n", "h_m (line 2) = nan"),
+        ("x_m,h_m,t_s\n0,0.1,-1\n1,0.2,-1\n", "t_s line 2 = -1.0; allowed range: >= 0"),
+        ("x_m,h_m\n0,0.1\n", "at least 2 are needed"),
+        ("x_m,h_m\n", "no data rows"),
+    ],
+)
+def test_csv_errors_name_field_value_and_range(tmp_path, text, needle):
+    with pytest.raises(DataError) as e:
+        load_profiles(_write(tmp_path, text))
+    assert needle in str(e.value)
+
+
+def test_hdf5_profiles_and_unit_check(tmp_path):
+    p = tmp_path / "p.h5"
+    with h5py.File(p, "w") as f:
+        f["x_m"] = [0.0, 0.5, 1.0]
+        f["h_m"] = [[0.2, 0.1, 0.0], [0.15, 0.1, 0.05]]
+        f["t_s"] = [1.0, 3.0]
+        f["sigma_m"] = 0.01
+    profs = load_profiles(p)
+    assert [q.t_s for q in profs] == [1.0, 3.0]
+    np.testing.assert_array_equal(profs[1].h_m, [0.15, 0.1, 0.05])
+    np.testing.assert_array_equal(profs[0].sigma_m, [0.01] * 3)
+    with h5py.File(p, "a") as f:
+        f["h_m"].attrs["units"] = "mm"
+    with pytest.raises(DataError, match="h_m has units attribute 'mm'; expected 'm'"):
+        load_profiles(p)
+
+
+# ---------------------------------------------------------------------------- specs
+class Mat(NamedTuple):
+    a: jnp.ndarray
+    b: jnp.ndarray
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        ParamSpec("a", 3.0, 0.1, 100.0, "log"),
+        ParamSpec("a", 3.0, None, None, "log"),
+        ParamSpec("a", 3.0, 1.0, None, "softplus"),
+        ParamSpec("a", 3.0, -5.0, 5.0, "linear"),
+        ParamSpec("a", -3.0, None, None, "identity"),
+    ],
+)
+def test_transforms_round_trip_stay_in_bounds_and_are_scaled(spec):
+    z0 = spec.to_z(spec.init)
+    assert abs(z0) < 1e-12  # z = 0 is the initial value
+    for theta in (spec.init * 0.5 if spec.init > 0 else -1.0, spec.init, 7.0 if spec.hi is None else 0.9 * spec.hi):
+        if spec.lo is not None and theta <= spec.lo:
+            continue
+        assert float(spec.to_theta(spec.to_z(theta))) == pytest.approx(theta, rel=1e-10)
+    # far steps stay inside the bounds
+    for z in (-60.0, 60.0):
+        th = float(spec.to_theta(jnp.float64(z)))
+        assert spec.lo is None or th >= spec.lo
+        assert spec.hi is None or th <= spec.hi
+    # unit step in z = unit change of ln(theta) (log) or of theta/|init| (others) at the start
+    d = float(jax.grad(spec.to_theta)(jnp.float64(0.0)))
+    expected = spec.init if spec.transform == "log" else max(abs(spec.init), 1.0 if spec.transform == "identity" else 0)
+    assert d == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize(
+    "kw, needle",
+    [
+        (dict(name="a", init=-1.0, lo=0.1, hi=10.0), "log transform needs a value > 0"),
+        (dict(name="a", init=20.0, lo=0.1, hi=10.0), "outside the allowed range (0.1, 10)"),
+        (dict(name="a", init=1.0, lo=0.1, hi=None), "both bounds or neither"),
+        (dict(name="a", init=1.0, transform="exp"), "allowed: log, softplus, linear, identity"),
+        (dict(name="a", init=1.0, lo=0.0, hi=2.0, transform="softplus"), "lower bound only"),
+    ],
+)
+def test_spec_errors(kw, needle):
+    with pytest.raises(ValueError) as e:
+        ParamSpec(**kw)
+    assert needle in str(e.value)
+
+
+def test_parameter_set_fixes_unfitted_inits_and_rejects_unknown_names():
+    mat = Mat(jnp.float64(1.0), jnp.float64(2.0))
+    ps = ParameterSet.from_names(["a"], mat, init={"a": 3.0, "b": 5.0}, bounds={"a": (0.1, 10.0)})
+    assert ps.free == ("a",)
+    got = ps.material_of({"a": 4.0})
+    assert float(got.a) == 4.0 and float(got.b) == 5.0  # b fixed at its --init value
+    with pytest.raises(ValueError, match="'c' is not a field of the scene's material Mat; allowed: a, b"):
+        ParameterSet.from_names(["c"], mat)
+
+
+# ------------------------------------------------------------ uncertainty: exact answers
+class LinearExperiment:
+    """r = (A theta - d) / sigma: Gauss-Newton is exact, cov = sigma^2 (A^T A)^-1."""
+
+    def __init__(self, A, d, sigma, known=True):
+        self.A, self.d, self.sigma, self.sigma_known, self.weight = A, d, sigma, known, 1.0
+        self.name = "linear"
+
+    def residuals(self, values):
+        th = jnp.stack([values["a"], values["b"]])
+        return (self.A @ th - self.d) / self.sigma
+
+
+def test_gauss_newton_equals_the_exact_linear_covariance():
+    rng = np.random.default_rng(0)
+    A = jnp.asarray(rng.normal(size=(40, 2)) + np.array([3.0, 1.0]))
+    d = A @ jnp.array([2.0, 0.5]) + 0.1 * rng.normal(size=40)
+    ps = ParameterSet.from_names(
+        ["a", "b"], Mat(jnp.float64(1.0), jnp.float64(1.0)), bounds={"a": (0.01, 100), "b": (0.01, 100)}
+    )
+    exp = LinearExperiment(A, d, 0.1)
+    theta = dict(zip(("a", "b"), np.linalg.lstsq(np.asarray(A), np.asarray(d), rcond=None)[0], strict=True))
+    u = gauss_newton([exp], ps, theta)
+    cov = 0.01 * np.linalg.inv(np.asarray(A.T @ A))
+    np.testing.assert_allclose(u.cov, cov, rtol=1e-9)
+    np.testing.assert_allclose(u.std, np.sqrt(np.diag(cov)), rtol=1e-9)
+    # unknown sigma: the residual variance sets the scale, s^2 = RSS / (N - p)
+    u2 = gauss_newton([LinearExperiment(A, d, 1.0, known=False)], ps, theta)
+    rss = float(np.sum((np.asarray(A) @ np.array([theta["a"], theta["b"]]) - np.asarray(d)) ** 2))
+    np.testing.assert_allclose(u2.cov, rss / 38 * np.linalg.inv(np.asarray(A.T @ A)), rtol=1e-9)
+
+
+def test_gauss_newton_flags_a_combination_the_data_cannot_separate():
+    # the model depends on a*b only (like a flow curve on alpha*T): a and b are perfectly
+    # anti-correlated in log space and the weakest direction is a^1 b^-1
+    class Product:
+        sigma_known, weight, name = True, 1.0, "product"
+
+        def residuals(self, v):
+            x = jnp.linspace(0.1, 1.0, 20)
+            return (v["a"] * v["b"] * x - 2.0 * x) / 0.01
+
+    ps = ParameterSet.from_names(
+        ["a", "b"], Mat(jnp.float64(1.0), jnp.float64(1.0)), bounds={"a": (0.01, 100), "b": (0.01, 100)}
+    )
+    u = gauss_newton([Product()], ps, {"a": 1.0, "b": 2.0})
+    assert any("least determined combination: a^1 * b^-1" in w for w in u.warnings), u.warnings
+    assert any("not identifiable" in w or "poorly identified" in w for w in u.warnings)
+
+
+# ---------------------------------------------------------------- fit loop: flow curve
+def test_fit_recovers_flow_curve_parameters_from_a_factor_two_guess():
+    """Flow-curve twin: 12 noisy points (2 % noise) of the BASE flow curve; fit mu0, n and
+    alpha (T fixed: the curve depends on alpha*T only).  The loss must fall by > 95 % and
+    the parameters come back within 3 standard deviations of the Gauss-Newton estimate
+    (the 99.7 % band of a well-posed linearised fit)."""
+    base = m.CoussotParams(*(jnp.float64(v) for v in (1850.0, 15000.0, 4.0, 1.0, 0.5, 2.5, 1.5, 5000.0)))
+    from mpmjax.rheometer import steady_flow_curve
+
+    g = np.logspace(-1, 2, 12)
+    tau = np.asarray(steady_flow_curve(base, g)[0]) * np.exp(0.02 * np.random.default_rng(3).standard_normal(12))
+    exp = FlowCurveExperiment(base, g, tau, sigma_ln=0.02)
+    ps = ParameterSet.from_names(["mu0", "n", "alpha"], base, init={"mu0": 8.0, "n": 5.0, "alpha": 0.5})
+    r = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
+    assert r.loss_final < 0.05 * r.loss_initial
+    u = gauss_newton([exp], ps, r.params)
+    for i, k in enumerate(u.names):
+        assert abs(r.params[k] - float(getattr(base, k))) < 3 * u.std[i], (k, r.params[k], u.std[i])
+    # multi-start by vmap finds the same optimum from 3 starts
+    r3 = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, n_starts=3, progress=False)
+    assert r3.history.shape[1] == 3
+    assert r3.loss_final == pytest.approx(r.loss_final, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- sweep
+SMALL = ["domain.cell_size_m=0.06", "time.t_end_s=0.3", "time.n_frames=3"]
+
+
+def test_sweep_batched_equals_one_by_one():
+    res = sweep(TWIN, {"mu0": [2.0, 6.0], "n": [2.0, 3.0]}, overrides=SMALL, chunk=3, progress=False)
+    assert res["chunk"] == 3 and len(res["cases"]) == 4  # two batches, the second padded
+    setup = m.build(m.load_scene(TWIN, SMALL))
+    for i, c in enumerate(res["cases"]):
+        mat = setup.params.material._replace(mu0=jnp.float64(c["mu0"]), n=jnp.float64(c["n"]))
+        p = setup.params._replace(material=mat)
+        st = restate(setup.state, setup.scene, p)
+        final, fr = m.simulate(setup.scene, st, p)
+        info = setup.info
+        front = float(
+            m.runout(final.x, final.active, info["runout_axis"], info["runout_origin_m"], info["particle_spacing_m"])
+        )
+        assert res["final_runout_m"][i] == pytest.approx(front, rel=1e-12, abs=1e-12)
+        assert int(res["n_lost"][i]) == int(final.n_lost)
+    # physics: a more viscous material runs out less far (same n)
+    r = {(c["mu0"], c["n"]): res["final_runout_m"][i] for i, c in enumerate(res["cases"])}
+    assert r[(6.0, 2.0)] < r[(2.0, 2.0)] and r[(6.0, 3.0)] < r[(2.0, 3.0)]
+
+
+def test_sweep_sharded_over_two_host_devices_equals_one_device(tmp_path):
+    code = (
+        "import json, sys; from calibration.sweep import sweep; import jax; "
+        f"r = sweep({TWIN!r}, {{'mu0': [2.0, 6.0], 'n': [2.0, 3.0]}}, overrides={SMALL!r}, chunk=4, progress=False); "
+        "print(json.dumps({'n_dev': jax.device_count(), 'runout': [float(v) for v in r['final_runout_m']]}))"
+    )
+    outs = []
+    for n in (1, 2):
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", JAX_PLATFORMS="cpu")
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+        assert p.returncode == 0, p.stderr[-2000:]
+        outs.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    assert [o["n_dev"] for o in outs] == [1, 2]
+    np.testing.assert_allclose(outs[1]["runout"], outs[0]["runout"], rtol=1e-12)
+
+
+def test_sweep_errors():
+    with pytest.raises(ValueError, match="--vary tau_y: not a material parameter of scene"):
+        sweep(TWIN, {"tau_y": [1.0]}, overrides=SMALL, progress=False)
+    with pytest.raises(m.SceneError, match="material.n"):
+        sweep(TWIN, {"n": [2.0, -1.0]}, overrides=SMALL, progress=False)
+    with pytest.raises(ValueError, match="expected NAME=V1,V2"):
+        parse_vary(["n"])
+    with pytest.raises(ValueError, match="values must be numbers"):
+        parse_vary(["n=a,b"])
+
+
+# ------------------------------------------------------------------------------ CLI
+def _cli(*args):
+    from mpmjax.cli import main
+
+    return main(list(args))
+
+
+def test_calibrate_cli_bad_input_exits_2(tmp_path, capsys):
+    good = ROOT / "data" / "synthetic_twin_small_profiles.csv"
+    bad = _write(tmp_path, "x_m,h_m\n0,0.1\n1,-1\n")
+    assert _cli("calibrate", str(bad), "--scene", TWIN, "--fit", "mu0", "--out", str(tmp_path / "o")) == 2
+    assert "h_m (line 3) = -1.0; allowed range: >= 0" in capsys.readouterr().err
+    assert _cli("calibrate", str(good), "--scene", TWIN, "--fit", "tau_y", "--out", str(tmp_path / "o")) == 2
+    assert "'tau_y' is not a field of the scene's material CoussotParams" in capsys.readouterr().err
+    assert (
+        _cli("calibrate", str(good), "--scene", TWIN, "--fit", "mu0", "--init", "mu0=-2", "--out", str(tmp_path / "o"))
+        == 2
+    )
+    assert "material.mu0_pa_s" in capsys.readouterr().err
+    assert _cli("calibrate", str(tmp_path / "none.csv"), "--scene", TWIN, "--fit", "mu0", "--out", str(tmp_path)) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert _cli("sweep", TWIN, "--vary", "n=1,x", "--out", str(tmp_path / "s")) == 2
+
+
+def test_sweep_cli_writes_table_json_and_plots(tmp_path):
+    out = tmp_path / "sw"
+    args = ["sweep", TWIN, "--vary", "n=2,3", "--quiet", "--out", str(out)]
+    for s in SMALL:
+        args += ["--set", s]
+    assert _cli(*args) == 0
+    rows = (out / "sweep.csv").read_text().splitlines()
+    assert rows[0] == "n,final_runout_m,time_to_rest_s,n_lost" and len(rows) == 3
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["units"]["final_runout_m"] == "m" and len(doc["runout_m"][0]) == 4  # frames 0..3
+    assert all(0.2 < float(r.split(",")[1]) < 0.9 for r in rows[1:])  # between the block and the far wall
+    assert (out / "sweep_runout.png").stat().st_size > 1000
+
+
+def test_time_offsets_match_frames():
+    """Data times that are frame times map to them exactly; a time after the run is an error."""
+    from calibration.experiments import ProfileExperiment
+
+    s = m.build(m.load_scene(TWIN, SMALL))
+    x = np.linspace(0, 0.9, 10)
+    e = ProfileExperiment(s, [Profile(x, np.ones(10) * 0.01, 0.2), Profile(x, np.ones(10) * 0.01, None)])
+    assert e.frame_index == (2, 3)
+    assert max(abs(o) for o in e.time_offsets_s) < 1e-12
+    with pytest.raises(ValueError, match=r"t_s = 0.5 s is after the end of the scene's run \(t_end = 0.3 s\)"):
+        ProfileExperiment(s, [Profile(x, np.ones(10) * 0.01, 0.5)])
+    assert math.isfinite(e.bandwidth_m) and e.bandwidth_m == pytest.approx(0.06)
