@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _rheology, _shapes
-from ._scene import FACE_KINDS, WALL_KINDS, Gate, Params, Scene, Wall, ghost_cells, init_state
+from ._scene import FACE_KINDS, WALL_KINDS, Gate, Inflow, Params, Scene, Wall, ghost_cells, init_state
 
 
 class SceneError(ValueError):
@@ -171,6 +171,28 @@ SCHEMA: dict[str, Key] = {
     ),
     "gate.point_m": Key("vec", None, "m", "Aging gate: a point on the plane (optional)."),
     "gate.normal": Key("vec", None, "-", "Aging gate: normal; material ages once (x - point).normal > 0."),
+    "inflow.point_m": Key("vec", None, "m", "Pipe inflow: centre of the pipe exit (optional; no inflow without it)."),
+    "inflow.direction": Key("vec", None, "-", "Pipe inflow: flow direction at the exit (normalised)."),
+    "inflow.width_m": Key(
+        float, 0.1, "m", "Pipe inflow: cross-section, the width in 2D, the diameter in 3D.", lo=0.0, lo_open=True
+    ),
+    "inflow.flow_rate_m3_s": Key(
+        float,
+        0.001,
+        "m^3/s (2D: m^2/s)",
+        "Pipe inflow: volumetric flow rate Q (2D: per metre of depth).",
+        lo=0.0,
+        lo_open=True,
+    ),
+    "inflow.t_start_s": Key(float, 0.0, "s", "Pipe inflow: start time.", lo=0.0),
+    "inflow.t_stop_s": Key(float, math.nan, "s", "Pipe inflow: stop time; default: time.t_end_s.", lo=0.0),
+    "inflow.aging_gate": Key(
+        bool,
+        True,
+        "-",
+        "Pipe inflow: released material ages only once past the exit plane (an aging gate there; "
+        "it cannot be combined with gate.point_m).",
+    ),
     "output.runout_axis": Key(int, 0, "-", "Axis along which runout is measured.", lo=0, hi=2),
     "output.runout_origin_m": Key(
         float, math.nan, "m", "Origin of runout; default: the back (min) of the material along runout_axis at t = 0."
@@ -250,11 +272,14 @@ def _check(key: str, val: Any, spec: Key, dim: int):
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             bad("expected a number")
         val = _to_float(val)
-        if not math.isfinite(val) and not (key == "output.runout_origin_m" and math.isnan(val)):
+        if not math.isfinite(val) and not (key in _NAN_DEFAULT and math.isnan(val)):
             bad("must be finite")
     elif spec.type is int:
         if isinstance(val, bool) or not isinstance(val, int):
             bad("expected an integer")
+    elif spec.type is bool:
+        if not isinstance(val, bool):
+            bad("expected true or false")
     elif spec.type is str:
         if not isinstance(val, str):
             bad("expected a string")
@@ -273,6 +298,7 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     return val
 
 
+_NAN_DEFAULT = ("output.runout_origin_m", "inflow.t_stop_s")
 _MAX_PARTICLES = 2**31 - 1
 _F32 = np.finfo(np.float32)
 # float keys that become float32 arrays (material parameters, gravity, positions, velocities)
@@ -282,6 +308,7 @@ _F32_KEYS = tuple(k for k, s in SCHEMA.items() if s.type is float and k.split(".
     "domain.lo_m",
     "domain.hi_m",
     "gate.point_m",
+    "inflow.point_m",
 )
 
 
@@ -325,6 +352,82 @@ def _body_particle_count(blo, bhi, dx) -> float:
     with np.errstate(all="ignore"):
         counts = np.maximum(np.round((bhi - blo) / dx), 1.0)
         return float(np.prod(counts))
+
+
+def _validate_inflow(out: dict, dim: int, lo, hi, h):
+    pt, dr = out["inflow.point_m"], out["inflow.direction"]
+    if (pt is None) != (dr is None):
+        raise SceneError("inflow.point_m and inflow.direction must be given together")
+    if pt is None:
+        return
+    if not _usable_normal(dr):
+        raise SceneError(
+            f"inflow.direction = {dr} is invalid: allowed: a non-zero vector whose length is a finite, normal float"
+        )
+    p = np.asarray(pt)
+    if np.any(p < lo) or np.any(p > hi):
+        raise SceneError(f"inflow.point_m = {pt} lies outside the domain [{list(lo)}, {list(hi)}] (m)")
+    t0, t1 = out["inflow.t_start_s"], out["inflow.t_stop_s"]
+    t1 = out["time.t_end_s"] if math.isnan(t1) else t1
+    if t1 <= t0:
+        raise SceneError(f"inflow.t_stop_s = {t1} is invalid: allowed range: > inflow.t_start_s = {t0} (s)")
+    if out["inflow.aging_gate"] and out["gate.point_m"] is not None:
+        raise SceneError(
+            "gate.point_m is invalid with inflow.aging_gate = true (the inflow puts the aging gate at the pipe "
+            "exit); allowed: set inflow.aging_gate = false to use gate.point_m"
+        )
+    if 2 * out["inflow.width_m"] < h / out["numerics.ppc"]:
+        raise SceneError(
+            f"inflow.width_m = {out['inflow.width_m']} is invalid: allowed range: >= half the particle spacing "
+            f"domain.cell_size_m / numerics.ppc = {h / out['numerics.ppc']} m"
+        )
+    n = _inflow_layout(out, dim)[2]
+    if n > _MAX_PARTICLES:
+        raise SceneError(
+            f"inflow: {n:.4g} pool particles (flow_rate_m3_s = {out['inflow.flow_rate_m3_s']}, "
+            f"{t1 - t0} s); the limit is {_MAX_PARTICLES}"
+        )
+
+
+def _perp_basis(d: np.ndarray) -> list[np.ndarray]:
+    """Unit vectors spanning the plane normal to the unit vector ``d``."""
+    if d.size == 2:
+        return [np.array([-d[1], d[0]])]
+    a = np.eye(3)[int(np.argmin(np.abs(d)))]
+    e1 = np.cross(d, a)
+    e1 /= np.linalg.norm(e1)
+    return [e1, np.cross(d, e1)]
+
+
+def _inflow_layout(cfg: dict, dim: int):
+    """Cross-section offsets (n_per, dim) [m], area A [m^2; 2D: m], pool size, layer count and layer dt [s].
+
+    The particle spacing is sp = h / ppc.  2D: n_per = round(width / sp) points evenly across the
+    width.  3D: the points of a square lattice of spacing sp (centred on the axis) inside the
+    disc of the diameter, at least the centre.  Layer time dt_l = sp / u rounded so that a whole
+    number of layers spans [t_start, t_stop]; each layer carries Q dt_l.
+    """
+    sp = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
+    d = np.asarray(cfg["inflow.direction"], float)
+    d = d / np.linalg.norm(d)
+    w = cfg["inflow.width_m"]
+    basis = _perp_basis(d)
+    if dim == 2:
+        m = max(1, int(round(w / sp)))
+        offs = [((j + 0.5) * w / m - 0.5 * w) * basis[0] for j in range(m)]
+        area = w
+    else:
+        area = math.pi * w * w / 4.0
+        m = max(1, int(math.ceil(w / sp)))
+        c = (np.arange(m) - 0.5 * (m - 1)) * sp
+        offs = [a * basis[0] + b * basis[1] for a in c for b in c if a * a + b * b <= 0.25 * w * w]
+        offs = offs or [0.0 * d]
+    t0 = cfg["inflow.t_start_s"]
+    t1 = cfg["time.t_end_s"] if math.isnan(cfg["inflow.t_stop_s"]) else cfg["inflow.t_stop_s"]
+    u = cfg["inflow.flow_rate_m3_s"] / area
+    with np.errstate(all="ignore"):
+        n_layers = max(1, int(round(min((t1 - t0) * u / sp, 1e12))))
+    return np.asarray(offs), area, float(n_layers) * len(offs), n_layers, (t1 - t0) / n_layers, u, d
 
 
 def validate(raw: dict) -> dict:
@@ -382,8 +485,8 @@ def validate(raw: dict) -> dict:
         )
     if dim == 2 and any(k.startswith("boundary.z") for k in flat):
         raise SceneError("boundary.z_lo / boundary.z_hi are only valid in 3D scenes (domain.dim = 3)")
-    if not out["bodies"]:
-        raise SceneError("bodies = [] is invalid: at least one material body is required")
+    if not out["bodies"] and out["inflow.point_m"] is None:
+        raise SceneError("bodies = [] is invalid: at least one material body (or an inflow) is required")
     n_particles = 0
     for i, b in enumerate(out["bodies"]):
         extra = set(b) - {"type", "lo_m", "hi_m", "velocity_m_s"}
@@ -438,6 +541,7 @@ def validate(raw: dict) -> dict:
             f"gate.normal = {out['gate.normal']} is invalid: allowed: a non-zero vector whose "
             "length is a finite, normal float"
         )
+    _validate_inflow(out, dim, lo, hi, h)
     if out["output.runout_axis"] >= dim:
         raise SceneError(
             f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1} "
@@ -553,7 +657,7 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     vol0 (n,) [m^dim] and v (n, dim) [m/s]."""
     dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
     dx = h / ppc
-    xs, vs = [], []
+    xs, vs = [np.zeros((0, dim))], [np.zeros((0, dim))]
     for b in cfg["bodies"]:
         lo, hi = np.asarray(b["lo_m"]), np.asarray(b["hi_m"])
         counts = np.maximum(np.round((hi - lo) / dx).astype(int), 1)
@@ -563,8 +667,8 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         vs.append(np.broadcast_to(np.asarray(b.get("velocity_m_s", [0.0] * dim), float), mesh.shape))
     x = np.concatenate(xs)
     # each body's particles fill it exactly: volume = body volume / count
-    vols = []
-    for b, xb in zip(cfg["bodies"], xs):
+    vols = [np.zeros(0)]
+    for b, xb in zip(cfg["bodies"], xs[1:]):
         vols.append(np.full(len(xb), np.prod(np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / len(xb)))
     return x, np.concatenate(vols), np.concatenate(vs)
 
@@ -670,6 +774,33 @@ def build(cfg: dict) -> Setup:
     params = make_params(cfg, dim, dtype)
     rheology = make_rheology(cfg)
     x, vol0, v = seed_bodies(cfg)
+    n_bodies = len(x)
+    inflow = None
+    if cfg["inflow.point_m"] is not None:
+        offs, area, _, n_layers, layer_dt, u, d = _inflow_layout(cfg, dim)
+        n_per = len(offs)
+        thickness = u * layer_dt
+        exit_ = np.asarray(cfg["inflow.point_m"], float)
+        inflow = Inflow(
+            point=tuple(map(float, exit_)),
+            direction=tuple(map(float, d)),
+            speed=float(u),
+            first=int(n_bodies),
+            n_layers=int(n_layers),
+            n_per_layer=int(n_per),
+            layer_dt=float(layer_dt),
+            t_start=float(cfg["inflow.t_start_s"]),
+            thickness=float(thickness),
+            offsets=tuple(tuple(map(float, o)) for o in offs),
+            half_width=0.5 * float(cfg["inflow.width_m"]),
+            pipe_length=2.0 * float(h),
+        )
+        # parked (inactive) at the exit, one layer thickness behind it
+        park = np.tile(exit_[None, :] + offs - 0.5 * thickness * d[None, :], (n_layers, 1))
+        x = np.concatenate([x, park])
+        vol0 = np.concatenate([vol0, np.full(len(park), area * thickness / n_per)])
+        v_pool = np.broadcast_to(u * d, park.shape)
+        v = np.concatenate([v, v_pool])
     lim = time_step_limits(cfg, params, x, v, rheology)
     t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
     dt_req = cfg["numerics.dt_s"]
@@ -719,6 +850,8 @@ def build(cfg: dict) -> Setup:
     gate = None
     if cfg["gate.point_m"] is not None:
         gate = Gate(tuple(cfg["gate.point_m"]), tuple(cfg["gate.normal"]))
+    elif inflow is not None and cfg["inflow.aging_gate"]:
+        gate = Gate(inflow.point, inflow.direction)
     scene = Scene(
         dim=dim,
         h=float(h),
@@ -742,12 +875,20 @@ def build(cfg: dict) -> Setup:
         n_particles=int(len(x)),
         gate=gate,
         dtype=dtype,
+        inflow=inflow,
     )
-    state = init_state(scene, params, x, vol0, v)
+    active = np.arange(len(x)) < n_bodies
+    state = init_state(scene, params, x, vol0, np.where(active[:, None], v, 0.0), active=active)
+    if inflow is not None and gate is not None and cfg["gate.point_m"] is None:
+        # the exit gate holds only the pipe material back: initial bodies age from t = 0
+        state = state._replace(gate=jnp.asarray(active))
     axis = cfg["output.runout_axis"]
     origin_r = cfg["output.runout_origin_m"]
     if math.isnan(origin_r):
-        origin_r = float(min(b["lo_m"][axis] for b in cfg["bodies"]))
+        starts = [b["lo_m"][axis] for b in cfg["bodies"]]
+        if inflow is not None:
+            starts.append(inflow.point[axis])
+        origin_r = float(min(starts))
     info = dict(
         lim,
         dt_s=float(dt),
@@ -756,6 +897,14 @@ def build(cfg: dict) -> Setup:
         runout_origin_m=origin_r,
         particle_spacing_m=h / cfg["numerics.ppc"],
     )
+    if inflow is not None:
+        info.update(
+            inflow_pool_particles=int(len(x) - n_bodies),
+            inflow_speed_m_s=inflow.speed,
+            inflow_layer_dt_s=inflow.layer_dt,
+            inflow_volume_m3=float(np.sum(vol0[n_bodies:])),
+            inflow_t_stop_s=inflow.t_stop,
+        )
     return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
 
 

@@ -48,6 +48,44 @@ class Gate:
 
 
 @dataclasses.dataclass(frozen=True)
+class Inflow:
+    """Pipe inflow: a fixed pool of particles, released in layers by a time schedule.
+
+    The pool is the last ``n_layers * n_per_layer`` particles of the buffer; particle
+    ``first + k * n_per_layer + j`` is layer k, position j in the cross-section.  Layer k
+    starts to leave the pipe at t_k = t_start + k * layer_dt and is switched on in the
+    step whose interval [t, t + dt) holds t_k, with its centre at
+    point + offsets[j] - direction (thickness/2 + speed (t_k - t)) and velocity
+    speed * direction, so consecutive layers are ``thickness`` apart and layer k has fully
+    left the pipe at t_k + layer_dt.  Each layer carries Q * layer_dt, the whole pool
+    Q (t_stop - t_start).  Until released a pool particle is inactive (zero mass).
+
+    point: centre of the pipe exit [m]; direction: unit vector of the flow;
+    speed: Q / A [m/s]; offsets: positions in the cross-section relative to ``point`` [m];
+    thickness: layer thickness speed * layer_dt [m]; half_width: half the pipe width
+    (2D) or the pipe radius (3D) [m]; pipe_length: length of the pipe end behind the exit
+    whose grid nodes are driven at the pipe velocity [m] (see ``_step.pipe_nodes``).
+    """
+
+    point: tuple[float, ...]
+    direction: tuple[float, ...]
+    speed: float
+    first: int
+    n_layers: int
+    n_per_layer: int
+    layer_dt: float
+    t_start: float
+    thickness: float
+    offsets: tuple[tuple[float, ...], ...]
+    half_width: float = 0.0
+    pipe_length: float = 0.0
+
+    @property
+    def t_stop(self) -> float:
+        return self.t_start + self.n_layers * self.layer_dt
+
+
+@dataclasses.dataclass(frozen=True)
 class Scene:
     """Everything static about a run.  Hashable; changing a field recompiles.
 
@@ -69,6 +107,7 @@ class Scene:
       dt: fixed time step [s]; steps_per_frame, n_frames: the nested scan lengths.
       n_particles: buffer capacity.
       gate: optional aging gate.
+      inflow: optional pipe inflow (``Inflow``; its pool is part of the particle buffer).
       dtype: ``float32`` or ``float64``.
     """
 
@@ -94,6 +133,7 @@ class Scene:
     n_particles: int
     gate: Gate | None = None
     dtype: str = "float32"
+    inflow: Inflow | None = None
 
     @property
     def n_nodes(self) -> int:

@@ -14,6 +14,9 @@ One explicit step (update-stress-last):
 5. particle update: J <- J det(I + dt L); rheology (structure, viscosity);
    deviatoric stress by the Maxwell exponential update or the explicit law.
 
+0. (pipe inflow only) pool particles whose layer time falls in this step are switched on;
+   in step 3 the grid nodes inside the pipe get the pipe velocity (``pipe_nodes``);
+
 The same code runs in 2D (plane strain) and 3D.
 """
 
@@ -211,6 +214,69 @@ def make_p2g(scene: Scene):
     return p2g
 
 
+def make_release(scene: Scene):
+    """Returns ``release(state, params) -> state``: switches on the pipe-inflow layers due in
+    this step (see ``_scene.Inflow``); the identity without an inflow.
+
+    A pool particle is released in the step whose interval [t, t + dt) holds its layer
+    time; the windows of consecutive steps tile the time axis, so each layer is released
+    exactly once (as long as t + dt > t in the state's precision: use float64 for runs
+    whose t / dt exceeds ~1e6).  Released particles start at rest in stress (J = 1,
+    tau = 0, C = 0) with the rheology's initial internal state and, with an aging gate,
+    have not yet passed it (material in the pipe does not age).
+    """
+    inf = scene.inflow
+    if inf is None:
+        return lambda state, params: state
+    dt = scene.dt
+    n_per = inf.n_per_layer
+
+    def release(state: State, params: Params) -> State:
+        dtp = state.x.dtype
+        n = state.x.shape[0]
+        rel = jnp.arange(n, dtype=jnp.int32) - inf.first
+        in_pool = rel >= 0
+        rel = jnp.maximum(rel, 0)
+        k, j = rel // n_per, rel % n_per
+        t_k = inf.t_start + k.astype(dtp) * inf.layer_dt
+        due = in_pool & ~state.active & (t_k >= state.t) & (t_k < state.t + dt)
+        d = jnp.asarray(inf.direction, dtp)
+        back = 0.5 * inf.thickness + inf.speed * (t_k - state.t)
+        pos = jnp.asarray(inf.point, dtp)[None, :] + jnp.asarray(inf.offsets, dtp)[j] - back[:, None] * d[None, :]
+        dd = due[:, None]
+        dm = due[:, None, None]
+        init = scene.rheology.init_internal(params.material, n)
+        return state._replace(
+            x=jnp.where(dd, pos, state.x),
+            v=jnp.where(dd, inf.speed * d[None, :], state.v),
+            C=jnp.where(dm, 0.0, state.C),
+            tau=jnp.where(dm, 0.0, state.tau),
+            J=jnp.where(due, 1.0, state.J),
+            internal={key: jnp.where(due, jnp.asarray(init[key], dtp), a) for key, a in state.internal.items()},
+            active=state.active | due,
+            gate=state.gate & ~due if scene.gate is not None else state.gate,
+        )
+
+    return release
+
+
+def pipe_nodes(scene: Scene) -> np.ndarray:
+    """Grid nodes inside the pipe (bool, n_nodes): behind the exit plane by at most
+    ``inflow.pipe_length`` and within the cross-section (half-width max(width/2, h/2), so a
+    pipe narrower than a cell still holds one row of nodes).  While the inflow runs these
+    nodes move at the pipe velocity (a velocity inlet that pushes the released layers out
+    against the material ahead); before and after it they are held at rest (a closed pipe).
+    """
+    inf = scene.inflow
+    xn = scene.node_positions() - np.asarray(inf.point)[None, :]
+    d = np.asarray(inf.direction)
+    along = xn @ d
+    lateral = np.linalg.norm(xn - along[:, None] * d[None, :], axis=1)
+    tol = 1e-9 * scene.h
+    half = max(inf.half_width, 0.5 * scene.h)
+    return (along <= tol) & (along >= -inf.pipe_length - tol) & (lateral <= half + tol)
+
+
 def make_step(scene: Scene):
     """Build the pure step function ``step(state, params) -> state`` for ``scene``."""
     dim, dt = scene.dim, scene.dt
@@ -224,9 +290,13 @@ def make_step(scene: Scene):
     safe_hi = np.asarray(scene.grid_origin) + (np.asarray(scene.grid_shape) - 1 - sup - 1e-3) * scene.h
     per = np.asarray(scene.periodic)
     d_apic = _shapes.APIC_D_FACTOR.get(scene.shape)
+    release = make_release(scene)
+    inf = scene.inflow
+    pipe = pipe_nodes(scene) if inf is not None else None
 
     def step(state: State, params: Params) -> State:
         dtp = state.x.dtype
+        state = release(state, params)
         mass, mom, force, st = p2g(state, params)
         has = mass > 0
         inv_m = jnp.where(has, 1.0 / jnp.where(has, mass, 1.0), 0.0)
@@ -235,6 +305,10 @@ def make_step(scene: Scene):
         v_new = jnp.where(has[:, None], v_old + dt * (force * inv_m[:, None] + g), 0.0)
         for mask, nrm, wall in walls:
             v_new = jnp.where(jnp.asarray(mask)[:, None], apply_wall(v_new, nrm, wall.kind), v_new)
+        if pipe is not None:
+            on = (state.t >= inf.t_start) & (state.t < inf.t_stop)
+            v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
+            v_new = jnp.where(jnp.asarray(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
 
         # G2P
         vi = v_new[st.idx]  # (n, S, dim)

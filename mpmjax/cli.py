@@ -66,6 +66,42 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+def _scenario_metrics(setup, state, times, kinetic) -> dict:
+    """summary.json scenario metrics (definitions in docs/output.md and mpmjax._metrics):
+    kinetic energy per frame, time to rest (1 % of the peak kinetic energy), mobilised
+    fraction (share of the final material displaced by more than one cell size h from where
+    it started or was released), the final free-surface profile along the runout axis (bins of
+    width h over the domain; null where empty) and its beach slope."""
+    import numpy as np
+
+    from . import _metrics
+
+    sc, info = setup.scene, setup.info
+    axis = info["runout_axis"]
+    x0 = np.asarray(setup.state.x)
+    if sc.inflow is not None:  # pool particles start where they are released, not where parked
+        x0 = np.where(np.asarray(setup.state.active)[:, None], x0, np.nan)
+    x, act = np.asarray(state.x), np.asarray(state.active)
+    moved_from = np.where(np.isnan(x0), x, x0)  # released particles: counted only by later motion
+    edges = np.arange(sc.lo[axis], sc.hi[axis] + 0.5 * sc.h, sc.h)
+    xc, top = _metrics.surface_profile(x, act, edges, info["particle_spacing_m"], axis=axis)
+    slope = _metrics.beach_slope(xc, top, bed=sc.lo[-1], min_depth_m=info["particle_spacing_m"])
+
+    def fin(a):
+        return float(a) if np.isfinite(a) else None
+
+    return {
+        "kinetic_energy_J": kinetic,
+        "kinetic_energy_unit": "J per metre of depth" if sc.dim == 2 else "J",
+        "time_to_rest_s": fin(_metrics.time_to_rest(times, kinetic, rel_threshold=0.01)),
+        "mobilised_fraction": fin(_metrics.mobilised_fraction(moved_from, x, act, sc.h, vol0=np.asarray(state.vol0))),
+        "mobilised_distance_m": sc.h,
+        "surface_profile_x_m": [float(a) for a in xc],
+        "surface_profile_z_m": [fin(a) for a in top],
+        "beach_slope": fin(slope),
+    }
+
+
 def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) -> dict:
     """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``.
 
@@ -75,7 +111,7 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
     import jax
     import numpy as np
 
-    from . import __version__
+    from . import __version__, _metrics
     from ._config import build, load_scene
     from ._io import FrameWriter, atomic_write_text, plot_result, read_result
     from ._observables import runout
@@ -100,11 +136,16 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
     spacing, axis, origin = info["particle_spacing_m"], info["runout_axis"], info["runout_origin_m"]
 
     def front(st):
-        return float(runout(st.x, st.active, axis, origin, spacing))
+        # no active material yet (a pipe inflow before its start): the front is at the origin
+        return float(runout(st.x, st.active, axis, origin, spacing)) if bool(np.any(st.active)) else 0.0
+
+    def energy(st):
+        return float(_metrics.kinetic_energy(np.asarray(st.v), np.asarray(st.vol0), np.asarray(st.active), rho))
 
     state = setup.state
     mass0 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
     times, fronts = [0.0], [front(state)]
+    kinetic = [energy(state)]
     prog = None if quiet else Progress(sc.n_frames, "run")
     complete = False
     t_run = time.perf_counter()
@@ -117,6 +158,7 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
             w.append(state)
             times.append((i + 1) * sc.steps_per_frame * sc.dt)
             fronts.append(front(state))
+            kinetic.append(energy(state))
             lost = int(state.n_lost)
             if lost > lost_reported:
                 log(
@@ -148,6 +190,7 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
         "times_s": times,
         "runout_m": fronts,
         "final_runout_m": fronts[-1],
+        **_scenario_metrics(setup, state, times, kinetic),
         "runout_definition": (
             f"max over active particles of x[{axis}] + half the initial particle spacing ({spacing / 2:g} m), "
             f"minus runout_origin_m = {origin:g} m"

@@ -1,0 +1,93 @@
+"""Material on an inclined plane: an infinite layer (periodic along the slope, gravity tilted
+by the slope angle, no-slip base, free surface).  Exact steady states (film flow):
+
+* Newtonian (no yield stress): flows for any slope; surface speed u_s = rho g sin(theta) H^2 / (2 mu).
+* Bingham: the base shear stress is rho g H sin(theta).  Below yield (tau_y > rho g H sin theta)
+  the layer stays put; above it, a plug of thickness h_p = tau_y / (rho g sin theta) rides on a
+  sheared layer of thickness H - h_p and u_s = rho g sin(theta) (H - h_p)^2 / (2 mu).
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from mpmjax._config import build, validate
+from mpmjax._simulate import run
+
+RHO, G, H = 1000.0, 9.81, 0.1
+
+
+def _layer(material: dict, slope_deg: float, t_end: float, kappa: float = 2e4):
+    raw = {
+        "domain": {"lo_m": [0.0, 0.0], "hi_m": [0.1, 0.15], "cell_size_m": 0.01},
+        "boundary": {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "slip"},
+        "numerics": {"ppc": 2, "dtype": "float64"},
+        "time": {"t_end_s": t_end, "n_frames": 4},
+        "material": {"density_kg_m3": RHO, "bulk_modulus_pa": kappa, **material},
+        "gravity": {"g_m_s2": G, "slope_deg": slope_deg},
+        "bodies": [{"type": "box", "lo_m": [0.0, 0.0], "hi_m": [0.1, H]}],
+    }
+    s = build(validate(raw))
+    final, frames = run(s.scene, s.state, s.params)
+    x0 = np.asarray(s.state.x)
+    x = np.asarray(final.x)
+    v = np.asarray(final.v)
+    top = x0[:, 1] > x0[:, 1].max() - 1e-9
+    return s, x0, x, v, top, frames
+
+
+def test_newtonian_layer_flows_at_the_film_flow_speed():
+    mu, th = 10.0, 5.0
+    # viscous time rho H^2 / mu = 1 s; the slowest mode decays as exp(-pi^2 mu t / (4 rho H^2)),
+    # 2.5 % left at t = 1.5 s
+    s, x0, x, v, top, _ = _layer({"model": "newtonian", "viscosity_pa_s": mu}, th, 1.5)
+    u_s = RHO * G * math.sin(math.radians(th)) * H**2 / (2 * mu)  # 0.4275 m/s
+    surf = v[top, 0].mean()
+    # 10 cells over the depth with GIMP, against u_s less the 2.5 % transient left: measured
+    # -0.9 % (0.4130 vs 0.4168 m/s); bound 4 % (the transient estimate is itself approximate)
+    assert surf == pytest.approx(u_s * (1 - 0.025), rel=0.04), surf
+    # the profile is the half-parabola: speed at mid-depth is 3/4 of the surface speed
+    mid = np.abs(x0[:, 1] - 0.5 * H) < 0.006
+    # (measured 0.740; bound +-0.03 for the 1.2 cm band around mid-depth)
+    assert v[mid, 0].mean() / surf == pytest.approx(0.75, abs=0.03)
+
+
+def _bingham(tau_y, mu=20.0):
+    # large Papanastasiou time: below yield mu_eff = mu + tau_y m = 2.5e5 Pa s (creep 1e-4 of a
+    # Newtonian layer of the plastic viscosity)
+    return {"model": "bingham", "viscosity_pa_s": mu, "yield_stress_pa": tau_y, "papanastasiou_m_s": 1000.0}
+
+
+def test_bingham_below_the_critical_slope_stays_put():
+    tau_y, th = 250.0, 10.0
+    base_stress = RHO * G * H * math.sin(math.radians(th))  # 170 Pa < tau_y
+    assert tau_y > base_stress
+    # kappa = 2e5 Pa: the layer settles under its weight by rho g H / kappa = 0.5 % (Tait EOS);
+    # while it compresses the deviatoric rate yields the material and it slides a little.
+    # That slide scales as 1/kappa (measured surface shift after 1.5 s: 8.1 mm at 2e4 Pa,
+    # 1.0 mm at 2e5 Pa; 0 on a level base) and is a weak-compressibility artefact.
+    s, x0, x, v, top, _ = _layer(_bingham(tau_y), th, 0.75, kappa=2e5)
+    # a Newtonian layer of the plastic viscosity would move its surface at
+    # rho g sin(theta) H^2 / (2 mu) = 0.43 m/s, i.e. ~0.3 m in 0.75 s.  Here: measured max
+    # speed 0.28 mm/s and shift 0.87 mm (bounds 1 mm/s and 1.5 mm = 1.5 % of H)
+    assert np.abs(v[:, 0]).max() < 1e-3
+    shift = (x[top, 0] - x0[top, 0] + 0.05) % 0.1 - 0.05  # periodic along the slope (0.1 m)
+    assert np.abs(shift).max() < 1.5e-3
+
+
+def test_bingham_above_the_critical_slope_flows_with_a_plug():
+    tau_y, th, mu = 250.0, 30.0, 20.0
+    s_th = math.sin(math.radians(th))
+    assert tau_y < RHO * G * H * s_th  # 490 Pa
+    h_p = tau_y / (RHO * G * s_th)  # 0.051 m plug
+    u_s = RHO * G * s_th * (H - h_p) ** 2 / (2 * mu)  # 0.295 m/s
+    # viscous time of the sheared layer rho (H - h_p)^2 / mu = 0.12 s; run 1 s
+    s, x0, x, v, top, _ = _layer(_bingham(tau_y, mu), th, 1.0)
+    surf = v[top, 0].mean()
+    # regularised yield (Papanastasiou, m = 1000 s) and 5 cells across the sheared layer:
+    # measured -0.24 % (0.2941 vs 0.2948 m/s); bound 3 %
+    assert surf == pytest.approx(u_s, rel=0.03), surf
+    # the plug: the top 4 cm (inside h_p = 5.1 cm) moves as a block within 3 %
+    plug = x0[:, 1] > H - 0.04
+    assert np.ptp(v[plug, 0]) < 0.03 * u_s
