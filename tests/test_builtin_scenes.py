@@ -46,6 +46,8 @@ CI_OVERRIDES = {
     "bingham-dambreak": ["domain.cell_size_m=0.02", "time.t_end_s=1.0", "time.n_frames=10"],
     # 3000 m x 24 m; 6 m cells -> 500 x 4 cells, 100 x 6 particles; first 60 s of ~330 s
     "field-dambreak-2d": ["domain.cell_size_m=6.0", "time.t_end_s=60.0", "time.n_frames=6"],
+    # 3000 m x 300 m x 24 m half valley; 12 m cells -> 250 x 25 x 2 cells, 50 x 8 x 3 particles; first 30 s
+    "field-dambreak-3d": ["domain.cell_size_m=12.0", "time.t_end_s=30.0", "time.n_frames=3"],
 }
 
 SCENES = sorted(mpmjax.builtin_scenes())
