@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _rheology, _shapes
-from ._scene import FACE_KINDS, WALL_KINDS, Gate, Inflow, Params, Scene, Wall, ghost_cells, init_state
+from ._scene import FACE_KINDS, WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 
 
 class SceneError(ValueError):
@@ -193,6 +193,33 @@ SCHEMA: dict[str, Key] = {
         "Pipe inflow: released material ages only once past the exit plane (an aging gate there; "
         "it cannot be combined with gate.point_m).",
     ),
+    "terrain.type": Key(
+        str,
+        "none",
+        "-",
+        "Height-map boundary z = z_b(x[, y]) (bilinear between samples; nodes below it get the condition): "
+        "none, noslip, slip or coulomb (slip with Coulomb friction).",
+        choices=("none", "noslip", "slip", "coulomb"),
+    ),
+    "terrain.heights_m": Key(
+        "table-list",
+        None,
+        "m",
+        "Terrain samples z_b: a list of numbers along x (2D) or a list of rows along x, each a list along y "
+        "(3D). Alternative: terrain.csv.",
+    ),
+    "terrain.csv": Key(
+        str,
+        "",
+        "-",
+        "CSV file of terrain samples z_b [m] (rows along x; in 3D columns along y; # comments), "
+        "relative to the scene file.",
+    ),
+    "terrain.origin_m": Key("vec", None, "m", "Terrain: position of the first sample (x0[, y0]); default domain.lo_m."),
+    "terrain.spacing_m": Key(
+        float, 1.0, "m", "Terrain: sample spacing along each horizontal axis.", lo=0.0, lo_open=True
+    ),
+    "terrain.friction": Key(float, 0.0, "-", "Terrain: Coulomb friction coefficient (type coulomb).", lo=0.0, hi=10.0),
     "output.runout_axis": Key(int, 0, "-", "Axis along which runout is measured.", lo=0, hi=2),
     "output.runout_origin_m": Key(
         float, math.nan, "m", "Origin of runout; default: the back (min) of the material along runout_axis at t = 0."
@@ -254,16 +281,20 @@ def _check(key: str, val: Any, spec: Key, dim: int):
         raise SceneError(f"{key} = {_show(val)} is invalid: {why} ({spec.doc} Unit: {spec.unit})")
 
     if spec.type == "vec":
+        n = dim - 1 if key == "terrain.origin_m" else dim  # horizontal axes only
         if not isinstance(val, (list, tuple)) or not all(
             isinstance(a, (int, float)) and not isinstance(a, bool) for a in val
         ):
-            bad(f"expected a list of {dim} numbers")
-        if len(val) != dim:
-            bad(f"expected {dim} components for a {dim}D scene (domain.dim = {dim})")
+            bad(f"expected a list of {n} numbers")
+        if len(val) != n:
+            bad(f"expected {n} components for a {dim}D scene (domain.dim = {dim})")
         vals = [_to_float(a) for a in val]
         if not all(math.isfinite(a) for a in vals):
             bad("components must be finite")
         return vals
+    if key == "terrain.heights_m":
+        arr = _terrain_array(val, dim, lambda why: bad(why))
+        return arr.tolist()
     if spec.type == "table-list":
         if not isinstance(val, list) or not all(isinstance(a, dict) for a in val):
             bad("expected a list of tables ([[...]] in TOML)")
@@ -352,6 +383,45 @@ def _body_particle_count(blo, bhi, dx) -> float:
     with np.errstate(all="ignore"):
         counts = np.maximum(np.round((bhi - blo) / dx), 1.0)
         return float(np.prod(counts))
+
+
+def _terrain_array(val, dim: int, bad) -> np.ndarray:
+    """Terrain samples as a float array of dim - 1 axes (each >= 2 samples), all finite."""
+    try:
+        arr = np.asarray(val, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        bad(f"expected {'a list of numbers' if dim == 2 else 'a list of equal-length lists of numbers'}")
+    if arr.ndim != dim - 1 or min(arr.shape) < 2:
+        bad(f"expected {dim - 1} axis/axes of at least 2 samples (domain.dim = {dim}), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad("samples must be finite")
+    return arr
+
+
+def _validate_terrain(out: dict, dim: int, lo):
+    kind = out["terrain.type"]
+    if kind == "none":
+        return
+    if out["terrain.heights_m"] is None and not out["terrain.csv"]:
+        raise SceneError(f"terrain.type = {kind!r} needs terrain.heights_m or terrain.csv")
+    if out["terrain.heights_m"] is not None and out["terrain.csv"]:
+        raise SceneError("terrain.heights_m and terrain.csv are alternatives; give one")
+    if out["terrain.csv"]:
+        path = Path(out["terrain.csv"])
+        try:
+            data = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+        except (OSError, ValueError) as e:
+            raise SceneError(f"terrain.csv = {str(path)!r} cannot be read as a CSV of numbers: {e}") from None
+        if dim == 2:
+            data = data.ravel()
+
+        def bad(why):
+            raise SceneError(f"terrain.csv = {str(path)!r} is invalid: {why}")
+
+        out["terrain.heights_m"] = _terrain_array(data, dim, bad).tolist()
+        out["terrain.csv"] = str(path)
+    if out["terrain.origin_m"] is None:
+        out["terrain.origin_m"] = [float(a) for a in lo[: dim - 1]]
 
 
 def _validate_inflow(out: dict, dim: int, lo, hi, h):
@@ -542,6 +612,7 @@ def validate(raw: dict) -> dict:
             "length is a finite, normal float"
         )
     _validate_inflow(out, dim, lo, hi, h)
+    _validate_terrain(out, dim, lo)
     if out["output.runout_axis"] >= dim:
         raise SceneError(
             f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1} "
@@ -591,6 +662,9 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
             if not isinstance(node, dict):
                 raise SceneError(f"--set {key}: {p} is not a table in {path}")
         node[parts[-1]] = val
+    ter = raw.get("terrain")
+    if isinstance(ter, dict) and isinstance(ter.get("csv"), str) and ter["csv"]:
+        ter["csv"] = str((path.parent / ter["csv"]).resolve()) if not Path(ter["csv"]).is_absolute() else ter["csv"]
     return validate(raw)
 
 
@@ -852,6 +926,16 @@ def build(cfg: dict) -> Setup:
         gate = Gate(tuple(cfg["gate.point_m"]), tuple(cfg["gate.normal"]))
     elif inflow is not None and cfg["inflow.aging_gate"]:
         gate = Gate(inflow.point, inflow.direction)
+    terrain = None
+    if cfg["terrain.type"] != "none":
+        hs = np.asarray(cfg["terrain.heights_m"], float)
+        terrain = Terrain(
+            origin=tuple(map(float, cfg["terrain.origin_m"])),
+            spacing=(float(cfg["terrain.spacing_m"]),) * (dim - 1),
+            heights=tuple(map(tuple, hs)) if hs.ndim == 2 else tuple(map(float, hs)),
+            kind=cfg["terrain.type"],
+            friction=float(cfg["terrain.friction"]),
+        )
     scene = Scene(
         dim=dim,
         h=float(h),
@@ -876,6 +960,7 @@ def build(cfg: dict) -> Setup:
         gate=gate,
         dtype=dtype,
         inflow=inflow,
+        terrain=terrain,
     )
     active = np.arange(len(x)) < n_bodies
     state = init_state(scene, params, x, vol0, np.where(active[:, None], v, 0.0), active=active)

@@ -48,6 +48,58 @@ class Gate:
 
 
 @dataclasses.dataclass(frozen=True)
+class Terrain:
+    """A height-map boundary z = z_b(x[, y]) sampled on a regular grid (bilinear between samples).
+
+    Grid nodes with z <= z_b(node) get the condition ``kind`` with the local normal
+    n = (-grad z_b, 1)/|.| (pointing into the fluid): ``noslip`` (v = 0), ``slip`` (the
+    inward normal velocity is removed) or ``coulomb`` (as slip, and the tangential speed is
+    reduced by ``friction`` times the removed normal speed, to zero at most: Coulomb
+    friction with coefficient ``friction``, the usual MPM contact form).  Particles below
+    the surface are lifted onto it.
+
+    origin: first sample position (x0[, y0]) [m]; spacing: sample spacing per horizontal
+    axis [m]; heights: z_b samples [m], nested tuples in (x[, y]) order.
+    """
+
+    origin: tuple[float, ...]
+    spacing: tuple[float, ...]
+    heights: tuple
+    kind: str
+    friction: float = 0.0
+
+    def height(self, xy, xp=np):
+        """z_b [m] at horizontal positions ``xy`` (n, dim - 1); clamped outside the map."""
+        z = xp.asarray(np.asarray(self.heights, float), dtype=xy.dtype)
+        idx, frac = [], []
+        for a in range(xy.shape[1]):
+            u = (xy[:, a] - self.origin[a]) / self.spacing[a]
+            u = xp.clip(u, 0.0, z.shape[a] - 1.0)
+            i = xp.clip(xp.floor(u), 0, max(z.shape[a] - 2, 0)).astype(np.int32)
+            idx.append(i)
+            frac.append(u - i)
+        if len(idx) == 1:
+            i, f = idx[0], frac[0]
+            j = xp.minimum(i + 1, z.shape[0] - 1)
+            return z[i] * (1 - f) + z[j] * f
+        (i, fi), (k, fk) = (idx[0], frac[0]), (idx[1], frac[1])
+        i1, k1 = xp.minimum(i + 1, z.shape[0] - 1), xp.minimum(k + 1, z.shape[1] - 1)
+        return (z[i, k] * (1 - fi) + z[i1, k] * fi) * (1 - fk) + (z[i, k1] * (1 - fi) + z[i1, k1] * fi) * fk
+
+    def normal(self, xy, xp=np):
+        """Unit normal (n, dim) of the surface at ``xy`` (central differences of ``height``)."""
+        comps = []
+        for a in range(xy.shape[1]):
+            e = np.zeros(xy.shape[1])
+            e[a] = 0.5 * self.spacing[a]
+            d = (self.height(xy + e[None, :], xp) - self.height(xy - e[None, :], xp)) / self.spacing[a]
+            comps.append(-d)
+        comps.append(xp.ones_like(comps[0]))
+        n = xp.stack(comps, axis=-1)
+        return n / xp.linalg.norm(n, axis=-1, keepdims=True)
+
+
+@dataclasses.dataclass(frozen=True)
 class Inflow:
     """Pipe inflow: a fixed pool of particles, released in layers by a time schedule.
 
@@ -108,6 +160,7 @@ class Scene:
       n_particles: buffer capacity.
       gate: optional aging gate.
       inflow: optional pipe inflow (``Inflow``; its pool is part of the particle buffer).
+      terrain: optional height-map boundary (``Terrain``).
       dtype: ``float32`` or ``float64``.
     """
 
@@ -134,6 +187,7 @@ class Scene:
     gate: Gate | None = None
     dtype: str = "float32"
     inflow: Inflow | None = None
+    terrain: Terrain | None = None
 
     @property
     def n_nodes(self) -> int:

@@ -187,6 +187,24 @@ def apply_wall(v, nrm, kind):
     raise ValueError(kind)
 
 
+def terrain_velocity(v, nrm, terrain):
+    """Nodal velocity after the terrain condition; ``nrm`` (N, dim) per-node unit normals."""
+    if terrain.kind == "noslip":
+        return jnp.zeros_like(v)
+    n = jnp.asarray(nrm, v.dtype)
+    vn = jnp.sum(v * n, axis=1)
+    inward = jnp.minimum(vn, 0.0)
+    v_s = v - inward[:, None] * n
+    if terrain.kind == "slip":
+        return v_s
+    # coulomb: tangential speed reduced by friction x |removed normal speed|, at most to zero
+    vt = v_s - jnp.sum(v_s * n, axis=1)[:, None] * n
+    speed = jnp.sqrt(jnp.sum(vt * vt, axis=1))
+    moving = speed > 0.0
+    scale = jnp.where(moving, jnp.maximum(0.0, 1.0 - terrain.friction * (-inward) / jnp.where(moving, speed, 1.0)), 0.0)
+    return v_s - (1.0 - scale)[:, None] * vt
+
+
 def make_p2g(scene: Scene):
     """Returns ``p2g(state, params) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``."""
     dim = scene.dim
@@ -293,6 +311,11 @@ def make_step(scene: Scene):
     release = make_release(scene)
     inf = scene.inflow
     pipe = pipe_nodes(scene) if inf is not None else None
+    terrain = scene.terrain
+    if terrain is not None:
+        xn = scene.node_positions()
+        t_mask = xn[:, -1] <= terrain.height(xn[:, :-1]) + 1e-6 * scene.h
+        t_nrm = terrain.normal(xn[:, :-1])
 
     def step(state: State, params: Params) -> State:
         dtp = state.x.dtype
@@ -305,6 +328,8 @@ def make_step(scene: Scene):
         v_new = jnp.where(has[:, None], v_old + dt * (force * inv_m[:, None] + g), 0.0)
         for mask, nrm, wall in walls:
             v_new = jnp.where(jnp.asarray(mask)[:, None], apply_wall(v_new, nrm, wall.kind), v_new)
+        if terrain is not None:
+            v_new = jnp.where(jnp.asarray(t_mask)[:, None], terrain_velocity(v_new, t_nrm, terrain), v_new)
         if pipe is not None:
             on = (state.t >= inf.t_start) & (state.t < inf.t_stop)
             v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
@@ -335,6 +360,13 @@ def make_step(scene: Scene):
             x = jnp.where(behind[:, None], x - phi[:, None] * n_[None, :], x)
             vn = v_p @ n_
             v_p = jnp.where((behind & (vn < 0.0))[:, None], v_p - vn[:, None] * n_[None, :], v_p)
+        if terrain is not None:
+            zb = terrain.height(x[:, :-1], jnp)
+            below = x[:, -1] < zb
+            x = x.at[:, -1].set(jnp.where(below, zb, x[:, -1]))
+            n_p = terrain.normal(x[:, :-1], jnp)
+            vn = jnp.sum(v_p * n_p, axis=1)
+            v_p = jnp.where((below & (vn < 0.0))[:, None], v_p - vn[:, None] * n_p, v_p)
         if per.any():
             lo_ = jnp.asarray(lo, dtp)[None, :]
             wrapped = lo_ + jnp.mod(x - lo_, jnp.asarray(span, dtp)[None, :])
