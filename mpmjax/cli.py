@@ -78,11 +78,9 @@ def _scenario_metrics(setup, state, times, kinetic) -> dict:
 
     sc, info = setup.scene, setup.info
     axis = info["runout_axis"]
-    x0 = np.asarray(setup.state.x)
-    if sc.inflow is not None:  # pool particles start where they are released, not where parked
-        x0 = np.where(np.asarray(setup.state.active)[:, None], x0, np.nan)
+    # inflow pool particles are parked where they are released (half a layer behind the exit)
+    moved_from = np.asarray(setup.state.x)
     x, act = np.asarray(state.x), np.asarray(state.active)
-    moved_from = np.where(np.isnan(x0), x, x0)  # released particles: counted only by later motion
     edges = np.arange(sc.lo[axis], sc.hi[axis] + 0.5 * sc.h, sc.h)
     xc, top = _metrics.surface_profile(x, act, edges, info["particle_spacing_m"], axis=axis)
     slope = _metrics.beach_slope(xc, top, bed=sc.lo[-1], min_depth_m=info["particle_spacing_m"])
