@@ -473,9 +473,10 @@ def _inflow_layout(cfg: dict, dim: int):
     """Cross-section offsets (n_per, dim) [m], area A [m^2; 2D: m], pool size, layer count and layer dt [s].
 
     The particle spacing is sp = h / ppc.  2D: n_per = round(width / sp) points evenly across the
-    width.  3D: the points of a square lattice of spacing sp (centred on the axis) inside the
-    disc of the diameter, at least the centre.  Layer time dt_l = sp / u rounded so that a whole
-    number of layers spans [t_start, t_stop]; each layer carries Q dt_l.
+    width.  3D: the points of a square lattice of spacing sp' = min(sp, diameter/2) (centred on
+    the axis) inside the disc of the diameter (so at least 2 x 2 points); layers sp' thick.
+    Layer time dt_l = sp' / u (2D: sp / u) rounded so that a whole number of layers spans
+    [t_start, t_stop]; each layer carries Q dt_l.
     """
     sp = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
     d = np.asarray(cfg["inflow.direction"], float)
@@ -487,6 +488,9 @@ def _inflow_layout(cfg: dict, dim: int):
         offs = [((j + 0.5) * w / m - 0.5 * w) * basis[0] for j in range(m)]
         area = w
     else:
+        # at least 2 x 2 points across: a single particle on the pipe axis sits on a plane of
+        # symmetry in y and never spreads sideways (measured in field-pipe-3d at h = 0.5 m)
+        sp = min(sp, 0.5 * w)
         area = math.pi * w * w / 4.0
         m = max(1, int(math.ceil(w / sp)))
         c = (np.arange(m) - 0.5 * (m - 1)) * sp
