@@ -289,6 +289,11 @@ def main(argv=None) -> int:
     pb.add_argument("--steps", type=int, default=2000, help="steps per measurement")
     pb.add_argument("--dtype", default="float32", choices=("float32", "float64"))
     pb.set_defaults(fn=cmd_bench)
+    from . import _stress
+
+    pss = sub.add_parser("stress", help="robustness cases (stiff, viscous, field scale, slope, drop, 100k steps)")
+    _stress.add_arguments(pss)
+    pss.set_defaults(fn=_stress.cmd_stress)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
