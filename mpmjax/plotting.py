@@ -1,0 +1,434 @@
+"""Plots of a finished (or interrupted) run read back from ``result.h5``.
+
+Every function takes ``result``: the dict returned by ``mpmjax._io.read_result``, or a path
+to a ``result.h5`` file (or to the run folder holding it).  Matplotlib only; nothing here needs a display (it works
+with the Agg backend, which matplotlib picks by itself on a headless machine).
+
+* ``particles(result, frame, field)``: side view (3D: side or plan view) of one frame,
+  coloured by a stored field, with a colour bar in the field's unit.
+* ``profiles(result, times, data)``: free-surface or kernel height profiles at chosen times,
+  with measured profiles (``calibration.data.Profile`` or ``(x_m, h_m)`` arrays) overlaid.
+* ``runout_vs_time(result)``: the front position (``mpmjax.runout``) against time.
+* ``animate(result, path, field)``: a GIF of the particles, one image per saved frame.
+
+Fields (``FIELDS``): ``mu`` effective viscosity [Pa·s] (log colour scale), ``lambda``
+Coussot structure parameter [-], ``speed`` |v| [m/s], ``vx`` and the vertical velocity
+``vz`` [m/s], ``J`` volume ratio [-], ``displacement`` |x - x(t=0)| [m].  ``lambda`` exists
+only for Coussot scenes; the error for an unknown or missing field lists the allowed ones.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "FIELDS",
+    "animate",
+    "field_values",
+    "load",
+    "particles",
+    "profile_at",
+    "profiles",
+    "runout",
+    "runout_vs_time",
+]
+
+# name -> (label, unit, log colour scale)
+FIELDS = {
+    "mu": ("effective viscosity μ", "Pa·s", True),
+    "lambda": ("structure parameter λ", "-", False),
+    "speed": ("speed |v|", "m/s", False),
+    "vx": ("horizontal velocity v_x", "m/s", False),
+    "vz": ("vertical velocity", "m/s", False),
+    "J": ("volume ratio J", "-", False),
+    "displacement": ("displacement |x − x0|", "m", False),
+}
+
+
+def load(result) -> dict:
+    """``result`` as the dict of ``read_result``: a dict is returned as is, a path to
+    ``result.h5`` or to a run folder containing it is read."""
+    if isinstance(result, dict):
+        if not {"attrs", "frames"} <= set(result):
+            raise ValueError("result: expected the dict of mpmjax._io.read_result (keys 'attrs', 'frames', ...)")
+        return result
+    from ._io import read_result
+
+    p = Path(result)
+    if p.is_dir():
+        p = p / "result.h5"
+    if not p.exists():
+        raise FileNotFoundError(f"result: {p} does not exist (expected a result.h5 written by `mpmjax run`)")
+    return read_result(p)
+
+
+def _cfg(res) -> dict:
+    return json.loads(res["attrs"]["scene_config_json"])
+
+
+def _geometry(res) -> dict:
+    """Cell size, particle spacing, runout axis and origin [m] of the run (as ``build`` defines them)."""
+    cfg = _cfg(res)
+    h = float(cfg["domain.cell_size_m"])
+    axis = int(cfg["output.runout_axis"])
+    origin = cfg["output.runout_origin_m"]
+    if origin is None or (isinstance(origin, float) and math.isnan(origin)):
+        starts = [b["lo_m"][axis] for b in cfg["bodies"]]
+        if cfg.get("inflow.point_m") is not None:
+            starts.append(cfg["inflow.point_m"][axis])
+        origin = min(starts)
+    return {
+        "h": h,
+        "spacing": h / int(cfg["numerics.ppc"]),
+        "axis": axis,
+        "origin": float(origin),
+        "lo": list(cfg["domain.lo_m"]),
+        "hi": list(cfg["domain.hi_m"]),
+        "dim": int(cfg["domain.dim"]),
+        "name": cfg["name"],
+    }
+
+
+def _allowed(res) -> list[str]:
+    fr = res["frames"]
+    return [k for k in FIELDS if k != "lambda" or "lambda" in fr]
+
+
+def _check_field(res, field: str):
+    allowed = _allowed(res)
+    if field not in allowed:
+        extra = " (lambda is stored for Coussot scenes only)" if field == "lambda" else ""
+        raise ValueError(f"field = {field!r} is not available{extra}; allowed: {', '.join(allowed)}")
+
+
+def _frame_index(res, frame: int) -> int:
+    n = res["frames"]["t_s"].shape[0]
+    if not isinstance(frame, (int, np.integer)) or isinstance(frame, bool):
+        raise ValueError(f"frame = {frame!r}: expected an integer frame index in -{n}..{n - 1}")
+    if not -n <= int(frame) < n:
+        raise ValueError(f"frame = {frame}: this result has {n} frames; allowed range -{n}..{n - 1}")
+    return int(frame) % n
+
+
+def field_values(result, frame: int, field: str) -> np.ndarray:
+    """Values of ``field`` (see ``FIELDS``) for every particle of frame ``frame``, (n,), SI units."""
+    res = load(result)
+    _check_field(res, field)
+    k = _frame_index(res, frame)
+    fr = res["frames"]
+    if field == "mu":
+        return np.asarray(fr["mu_pa_s"][k], float)
+    if field == "lambda":
+        return np.asarray(fr["lambda"][k], float)
+    if field == "J":
+        return np.asarray(fr["J"][k], float)
+    v = np.asarray(fr["v_m_s"][k], float)
+    if field == "speed":
+        return np.linalg.norm(v, axis=-1)
+    if field == "vx":
+        return v[:, 0]
+    if field == "vz":
+        return v[:, -1]
+    return np.linalg.norm(np.asarray(fr["x_m"][k], float) - np.asarray(fr["x_m"][0], float), axis=-1)
+
+
+def _label(res, field: str) -> str:
+    name, unit, _ = FIELDS[field]
+    if field == "vz":
+        name = f"vertical velocity v_{'y' if res['frames']['x_m'].shape[-1] == 2 else 'z'}"
+    return f"{name} [{unit}]"
+
+
+def _make_norm(field: str, values):
+    from matplotlib.colors import LogNorm, Normalize
+
+    vals = np.asarray(values, float)
+    vals = vals[np.isfinite(vals)]
+    if FIELDS[field][2]:
+        vals = vals[vals > 0]
+        lo, hi = (float(vals.min()), float(vals.max())) if vals.size else (1.0, 10.0)
+        return LogNorm(vmin=lo, vmax=max(hi, lo * 1.001))
+    lo, hi = (float(vals.min()), float(vals.max())) if vals.size else (0.0, 1.0)
+    if hi <= lo:
+        hi = lo + (abs(lo) * 1e-3 or 1e-12)
+    return Normalize(vmin=lo, vmax=hi)
+
+
+def _axes_of(res, view: str) -> tuple[int, int, str, str]:
+    dim = res["frames"]["x_m"].shape[-1]
+    if view == "side":
+        return 0, dim - 1, "x [m]", ("y" if dim == 2 else "z") + " [m]"
+    if view == "plan":
+        if dim != 3:
+            raise ValueError(f"view = 'plan' needs a 3D result; this one is {dim}D (allowed: 'side')")
+        return 0, 1, "x [m]", "y [m]"
+    raise ValueError(f"view = {view!r}; allowed: 'side', 'plan' (3D only)")
+
+
+def particles(result, frame: int = -1, field: str = "mu", ax=None, *, view: str = "side", size=None, norm=None):
+    """Scatter plot of the active particles of one frame coloured by ``field``.
+
+    Args:
+      result: ``read_result`` dict or path to ``result.h5`` / its folder.
+      frame: frame index (0 = initial state, -1 = last).
+      field: one of ``FIELDS`` (``mu`` uses a logarithmic colour scale).
+      ax: matplotlib Axes to draw on (a new figure otherwise).
+      view: ``side`` (x against the vertical axis) or, in 3D, ``plan`` (x against y).
+      size: marker size [points^2] (default: from the particle count).
+      norm: a matplotlib colour ``Normalize`` (default: the frame's range).
+    Returns the Axes; its first collection is the scatter (one point per active particle,
+    colour values = the stored field) and ``ax.figure`` holds the colour bar.
+    """
+    import matplotlib.pyplot as plt
+
+    res = load(result)
+    _check_field(res, field)
+    k = _frame_index(res, frame)
+    a, b, xl, yl = _axes_of(res, view)
+    act = res["frames"]["active"][k].astype(bool)
+    x = res["frames"]["x_m"][k][act]
+    c = field_values(res, k, field)[act]
+    new = ax is None
+    if new:
+        _, ax = plt.subplots(figsize=(9, 3.2))
+    norm = _make_norm(field, c) if norm is None else norm
+    s = size if size is not None else float(np.clip(4000.0 / max(len(c), 1), 0.5, 20.0))
+    sc = ax.scatter(x[:, a], x[:, b], c=c, s=s, cmap="viridis", norm=norm, linewidths=0)
+    ax.figure.colorbar(sc, ax=ax, label=_label(res, field))
+    ax.set_xlabel(xl)
+    ax.set_ylabel(yl)
+    g = _geometry(res)
+    ax.set_title(f"{g['name']}: t = {res['frames']['t_s'][k]:.3g} s, {int(act.sum())} active particles", fontsize=9)
+    if new:
+        ax.figure.tight_layout()
+    return ax
+
+
+def _pick_times(res, times):
+    t = np.asarray(res["frames"]["t_s"], float)
+    out = []
+    tol = 0.5 * (t[-1] - t[0]) / max(len(t) - 1, 1) + 1e-9
+    for ts in times:
+        ts = float(ts)
+        if not (t[0] - tol <= ts <= t[-1] + tol):
+            raise ValueError(f"time {ts:g} s is outside the saved frames; allowed range {t[0]:g}..{t[-1]:g} s")
+        out.append(int(np.argmin(np.abs(t - ts))))
+    return out
+
+
+def _data_list(data):
+    """Measured data -> list of (label, t_s or None, x_m, h_m, sigma_m or None)."""
+    if data is None:
+        return []
+    if hasattr(data, "x_m") or (isinstance(data, tuple) and len(data) == 2 and np.ndim(data[0]) == 1):
+        data = [data]
+    out = []
+    for i, d in enumerate(data):
+        if hasattr(d, "x_m") and hasattr(d, "h_m"):
+            lab = "measured" + ("" if d.t_s is None else f" t = {d.t_s:g} s")
+            out.append((lab, d.t_s, np.asarray(d.x_m, float), np.asarray(d.h_m, float), d.sigma_m))
+            continue
+        try:
+            xd, hd = (np.asarray(a, float) for a in d)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"data[{i}]: expected a calibration.data.Profile or an (x_m, h_m) pair of 1-D arrays [m]"
+            ) from None
+        if xd.ndim != 1 or xd.shape != hd.shape:
+            raise ValueError(f"data[{i}]: x_m has shape {xd.shape} and h_m {hd.shape}; expected equal 1-D arrays [m]")
+        out.append((f"measured {i}", None, xd, hd, None))
+    return out
+
+
+def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwidth_m=None):
+    """Height profile of one frame along the runout axis: (x [m], h [m]).
+
+    ``method="surface"``: ``mpmjax._metrics.surface_profile`` (highest active particle plus
+    half a particle spacing per cell-wide bin; nan where empty), an elevation [m].
+    ``method="kernel"`` (2D): ``calibration.observables.height_profile`` at ``x_m``
+    (default: 201 stations over the domain) with bandwidth ``bandwidth_m`` (default one
+    cell), the depth-integrated thickness that ``mpmjax calibrate`` fits, using rest volumes.
+    """
+    from . import _metrics
+
+    res = load(result)
+    k = _frame_index(res, frame)
+    g = _geometry(res)
+    fr = res["frames"]
+    x, act = np.asarray(fr["x_m"][k], float), fr["active"][k].astype(bool)
+    ax_ = g["axis"]
+    if method == "surface":
+        if x_m is None:
+            edges = np.arange(g["lo"][ax_], g["hi"][ax_] + 0.5 * g["h"], g["h"])
+        else:
+            xs = np.asarray(x_m, float)
+            mid = 0.5 * (xs[1:] + xs[:-1])
+            edges = np.concatenate([[xs[0] - (mid[0] - xs[0])], mid, [xs[-1] + (xs[-1] - mid[-1])]])
+        if not act.any():
+            xc = 0.5 * (edges[1:] + edges[:-1])
+            return xc, np.full(xc.shape, np.nan)
+        return _metrics.surface_profile(x, act, edges, g["spacing"], axis=ax_)
+    if method == "kernel":
+        if g["dim"] != 2:
+            raise ValueError(f"method = 'kernel' is for 2D results; this one is {g['dim']}D (allowed: 'surface')")
+        import jax.numpy as jnp
+
+        from calibration.observables import height_profile
+
+        xs = np.linspace(g["lo"][ax_], g["hi"][ax_], 201) if x_m is None else np.asarray(x_m, float)
+        bw = g["h"] if bandwidth_m is None else float(bandwidth_m)
+        if not bw > 0:
+            raise ValueError(f"bandwidth_m = {bandwidth_m}; allowed: > 0 [m]")
+        hp = height_profile(
+            jnp.asarray(x), jnp.asarray(res["particles"]["vol0_m3"]), jnp.asarray(act), jnp.asarray(xs), bandwidth=bw
+        )
+        return xs, np.asarray(hp, float)
+    raise ValueError(f"method = {method!r}; allowed: 'surface', 'kernel'")
+
+
+def profiles(result, times=None, data=None, ax=None, *, method: str = "surface", bandwidth_m=None):
+    """Height profiles at ``times`` [s] (nearest saved frames) with measured ``data`` overlaid.
+
+    Args:
+      result: ``read_result`` dict or path.
+      times: times [s]; default: the measured profiles' times if they have any, else the last frame.
+      data: a ``calibration.data.Profile``, a list of them (``calibration.data.load_profiles``),
+        or ``(x_m, h_m)`` array pairs [m]; drawn as markers (error bars where sigma is known).
+      method: ``surface`` (free-surface elevation) or ``kernel`` (depth-integrated thickness,
+        as calibrated); see ``profile_at``.
+    Returns the Axes (one line per time, labelled with the frame's actual time).
+    """
+    import matplotlib.pyplot as plt
+
+    res = load(result)
+    meas = _data_list(data)
+    if times is None:
+        mt = [t for _, t, *_ in meas if t is not None]
+        times = sorted(set(mt)) if mt else [float(res["frames"]["t_s"][-1])]
+    times = np.atleast_1d(np.asarray(times, float))
+    ks = _pick_times(res, times)
+    new = ax is None
+    if new:
+        _, ax = plt.subplots(figsize=(8, 3.4))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    t = res["frames"]["t_s"]
+    for i, k in enumerate(ks):
+        xc, hc = profile_at(res, k, method=method, bandwidth_m=bandwidth_m)
+        ax.plot(xc, hc, "-", color=colors[i % len(colors)], label=f"model t = {t[k]:.3g} s")
+    for j, (lab, tm, xd, hd, sd) in enumerate(meas):
+        c = colors[ks.index(_pick_times(res, [tm])[0]) % len(colors)] if tm is not None else colors[j % len(colors)]
+        if sd is not None:
+            ax.errorbar(xd, hd, yerr=sd, fmt="o", ms=3, color=c, label=lab)
+        else:
+            ax.plot(xd, hd, "o", ms=3, color=c, label=lab)
+    g = _geometry(res)
+    axname = "xyz"[g["axis"]]
+    ax.set_xlabel(f"{axname} [m]")
+    ax.set_ylabel("surface elevation [m]" if method == "surface" else "height h [m]")
+    ax.set_title(f"{g['name']}: {'free-surface' if method == 'surface' else 'kernel height'} profiles", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    if new:
+        ax.figure.tight_layout()
+    return ax
+
+
+def runout(result) -> tuple[np.ndarray, np.ndarray]:
+    """(times [s], front position [m]) of every saved frame: ``mpmjax.runout`` with the run's
+    axis, origin and particle spacing (0 where no material is active yet, as in summary.json)."""
+    from ._observables import runout as _runout
+
+    res = load(result)
+    g = _geometry(res)
+    fr = res["frames"]
+    act = fr["active"].astype(bool)
+    front = np.asarray(_runout(fr["x_m"], act, g["axis"], g["origin"], g["spacing"]), float)
+    front = np.where(act.any(axis=-1), front, 0.0)
+    return np.asarray(fr["t_s"], float), front
+
+
+def runout_vs_time(result, ax=None, **plot_kw):
+    """Front position (runout [m], see ``runout``) against time [s]; returns the Axes."""
+    import matplotlib.pyplot as plt
+
+    res = load(result)
+    t, front = runout(res)
+    new = ax is None
+    if new:
+        _, ax = plt.subplots(figsize=(6, 3.4))
+    kw = {"marker": "o", "ms": 3, **plot_kw}
+    ax.plot(t, front, **kw)
+    g = _geometry(res)
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("runout [m]")
+    ax.set_title(f"{g['name']}: front along {'xyz'[g['axis']]} from {g['origin']:g} m", fontsize=9)
+    ax.grid(alpha=0.3)
+    if new:
+        ax.figure.tight_layout()
+    return ax
+
+
+def animate(result, path, field: str = "mu", *, frames=None, fps: float = 5.0, view: str = "side", dpi: int = 80):
+    """Write a GIF (matplotlib ``PillowWriter``) of the particles coloured by ``field``, one
+    image per saved frame (or per index in ``frames``), on fixed axes and one colour scale.
+    Returns the path."""
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    res = load(result)
+    _check_field(res, field)
+    path = Path(path)
+    if path.suffix.lower() != ".gif":
+        raise ValueError(f"path = {str(path)!r}: expected a .gif file name")
+    if not fps > 0:
+        raise ValueError(f"fps = {fps}; allowed: > 0")
+    n = res["frames"]["t_s"].shape[0]
+    ks = list(range(n)) if frames is None else [_frame_index(res, int(k)) for k in frames]
+    if not ks:
+        raise ValueError("frames: empty; give at least one frame index")
+    a, b, xl, yl = _axes_of(res, view)
+    act_all = res["frames"]["active"][ks].astype(bool)
+    vals = np.concatenate([field_values(res, k, field)[act_all[i]] for i, k in enumerate(ks)])
+    norm = _make_norm(field, vals)
+    pts = res["frames"]["x_m"][ks][act_all]
+    if pts.size == 0:
+        lo_a, hi_a, lo_b, hi_b = 0.0, 1.0, 0.0, 1.0
+    else:
+        lo_a, hi_a = float(pts[:, a].min()), float(pts[:, a].max())
+        lo_b, hi_b = float(pts[:, b].min()), float(pts[:, b].max())
+    pad_a, pad_b = 0.03 * (hi_a - lo_a) + 1e-6, 0.08 * (hi_b - lo_b) + 1e-6
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    t = res["frames"]["t_s"]
+    name = _geometry(res)["name"]
+
+    def draw(i):
+        ax.clear()
+        k = ks[i]
+        act = act_all[i]
+        x = res["frames"]["x_m"][k][act]
+        ax.scatter(x[:, a], x[:, b], c=field_values(res, k, field)[act], s=3, cmap="viridis", norm=norm, lw=0)
+        ax.set_xlim(lo_a - pad_a, hi_a + pad_a)
+        ax.set_ylim(lo_b - pad_b, hi_b + pad_b)
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.set_title(f"{name}: t = {t[k]:.3g} s", fontsize=9)
+        return ax.collections
+
+    from matplotlib.cm import ScalarMappable
+
+    fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=ax, label=_label(res, field))
+    anim = FuncAnimation(fig, draw, frames=len(ks), blit=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp.gif")
+    try:
+        anim.save(tmp, writer=PillowWriter(fps=fps), dpi=dpi)
+        tmp.replace(path)
+    finally:
+        plt.close(fig)
+        if tmp.exists():
+            tmp.unlink()
+    return path

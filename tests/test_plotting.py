@@ -1,0 +1,158 @@
+"""mpmjax.plotting on a coarse dam break run once through the CLI runner (``cli.run_scene``).
+
+The checks compare what is drawn with what is stored in result.h5: one scatter point per
+active particle at its stored position, colour values equal to the stored field, profiles
+equal to ``mpmjax._metrics.surface_profile``, the runout curve equal to summary.json's
+``runout_m``, one GIF image per saved frame, and labelled axes with units."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from mpmjax import _metrics, plotting  # noqa: E402
+from mpmjax._io import read_result  # noqa: E402
+
+# 2 m x 0.24 m; 0.2 m BASE Coussot block at 2 cm cells (400 particles); 0.5 s of the collapse, 5 frames
+OVERRIDES = ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5"]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from mpmjax import cli
+
+    out = tmp_path_factory.mktemp("plot")
+    summary = cli.run_scene("dambreak-lab", out, OVERRIDES, quiet=True)
+    return out, summary, read_result(out / "result.h5")
+
+
+@pytest.fixture(autouse=True)
+def _close():
+    yield
+    plt.close("all")
+
+
+def _colorbar_label(ax):
+    cbs = [a for a in ax.figure.axes if a is not ax]
+    assert len(cbs) == 1
+    return cbs[0].get_ylabel()
+
+
+@pytest.mark.parametrize("field", ["mu", "lambda", "J", "speed"])
+def test_particles_scatter_is_the_stored_field(run, field):
+    out, _, res = run
+    fr = res["frames"]
+    k = 3
+    # hide a third of the particles: only active ones may be drawn
+    res = {**res, "frames": {**fr, "active": fr["active"].copy()}}
+    res["frames"]["active"][k, ::3] = 0
+    act = res["frames"]["active"][k].astype(bool)
+    ax = plotting.particles(res, k, field)
+    sc = ax.collections[0]
+    assert sc.get_offsets().shape == (int(act.sum()), 2) and act.sum() < act.size
+    np.testing.assert_array_equal(np.asarray(sc.get_offsets()), fr["x_m"][k][act])
+    stored = {
+        "mu": fr["mu_pa_s"][k],
+        "lambda": fr["lambda"][k],
+        "J": fr["J"][k],
+        "speed": np.linalg.norm(fr["v_m_s"][k].astype(float), axis=-1),
+    }[field][act]
+    np.testing.assert_allclose(np.asarray(sc.get_array()), stored, rtol=1e-6)
+    assert ax.get_xlabel() == "x [m]" and ax.get_ylabel() == "y [m]"
+    unit = {"mu": "[Pa·s]", "lambda": "[-]", "J": "[-]", "speed": "[m/s]"}[field]
+    assert _colorbar_label(ax).endswith(unit)
+    # mu on a log colour scale spanning the frame's values
+    if field == "mu":
+        assert isinstance(sc.norm, matplotlib.colors.LogNorm)
+        assert sc.norm.vmin == pytest.approx(stored.min()) and sc.norm.vmax == pytest.approx(stored.max())
+    # a path to the run folder reads the same data
+    ax2 = plotting.particles(out, k, field)
+    assert ax2.collections[0].get_offsets().shape[0] == act.size
+
+
+def test_unknown_field_and_frame_are_named(run):
+    _, _, res = run
+    with pytest.raises(ValueError, match="allowed: mu, lambda, speed, vx, vz, J, displacement"):
+        plotting.particles(res, 0, "viscosity")
+    with pytest.raises(ValueError, match="allowed range -6..5"):
+        plotting.particles(res, 6, "mu")
+    bingham = {**res, "frames": {k: v for k, v in res["frames"].items() if k != "lambda"}}
+    with pytest.raises(ValueError, match=r"Coussot scenes only\); allowed: mu, speed"):
+        plotting.particles(bingham, 0, "lambda")
+    with pytest.raises(ValueError, match="allowed: mu, lambda"):
+        plotting.animate(res, "x.gif", field="tau")
+    with pytest.raises(ValueError, match="'plan' needs a 3D result"):
+        plotting.particles(res, 0, "mu", view="plan")
+
+
+def test_runout_vs_time_matches_summary(run):
+    _, summary, res = run
+    ax = plotting.runout_vs_time(res)
+    t, front = ax.lines[0].get_data()
+    np.testing.assert_allclose(t, summary["times_s"], rtol=1e-6)
+    np.testing.assert_allclose(front, summary["runout_m"], rtol=1e-6)
+    # the 0.2 m block starts with its edge at 0.2 m and only advances
+    assert front[0] == pytest.approx(0.2, abs=1e-6) and np.all(np.diff(front) > 0)
+    assert ax.get_xlabel() == "time t [s]" and ax.get_ylabel() == "runout [m]"
+
+
+def test_profiles_with_measured_data(run, tmp_path):
+    from calibration.data import Profile
+
+    _, summary, res = run
+    data = [
+        Profile(np.array([0.05, 0.15, 0.25]), np.array([0.2, 0.2, 0.0]), t_s=0.0),
+        Profile(np.array([0.1, 0.3, 0.5]), np.array([0.08, 0.05, 0.02]), t_s=0.5, sigma_m=np.full(3, 0.01)),
+    ]
+    ax = plotting.profiles(res, data=data)  # times taken from the data: 0 s and 0.5 s
+    assert ax.get_xlabel() == "x [m]" and ax.get_ylabel() == "surface elevation [m]"
+    model = [ln for ln in ax.lines if ln.get_label().startswith("model")]
+    assert [ln.get_label() for ln in model] == ["model t = 0 s", "model t = 0.5 s"]
+    # the last frame's line is summary.json's final surface profile (same _metrics.surface_profile)
+    xc, hc = model[1].get_data()
+    np.testing.assert_allclose(xc, summary["surface_profile_x_m"], atol=1e-9)
+    z = np.array([np.nan if v is None else v for v in summary["surface_profile_z_m"]])
+    np.testing.assert_allclose(hc, z, rtol=1e-6, equal_nan=True)
+    # initial block: 0.2 m high over its 0.2 m width (top particle + half a spacing), empty beyond
+    x0, h0 = model[0].get_data()
+    assert np.allclose(h0[x0 < 0.2], 0.2, atol=1e-6) and np.all(np.isnan(h0[x0 > 0.2]))
+    # measured points drawn: plain markers at t = 0, error bars (3 points) at 0.5 s
+    assert any(np.array_equal(ln.get_xdata(), [0.05, 0.15, 0.25]) for ln in ax.lines)
+    assert len(ax.containers) == 1
+    # kernel method: the line is calibration.observables.height_profile on 201 stations, bandwidth h
+    axk = plotting.profiles(res, [0.5], (np.array([0.1, 0.3]), np.array([0.05, 0.03])), method="kernel")
+    xk, hk = axk.lines[0].get_data()
+    np.testing.assert_allclose(hk, plotting.profile_at(res, -1, method="kernel")[1])
+    assert axk.get_ylabel() == "height h [m]"
+    # with stations past the x = 0 wall it integrates to the released area, 0.2 m x 0.2 m per metre
+    xw, hw = plotting.profile_at(res, -1, method="kernel", x_m=np.linspace(-0.2, 2.2, 2401))
+    assert np.trapezoid(hw, xw) == pytest.approx(0.04, rel=1e-4)
+    with pytest.raises(ValueError, match="outside the saved frames; allowed range 0..0.5 s"):
+        plotting.profiles(res, [2.0])
+    with pytest.raises(ValueError, match="allowed: 'surface', 'kernel'"):
+        plotting.profiles(res, [0.5], method="max")
+    with pytest.raises(ValueError, match=r"data\[0\]: x_m has shape \(2,\) and h_m \(3,\)"):
+        plotting.profiles(res, [0.5], [(np.zeros(2), np.zeros(3))])
+    # the elevation helper is _metrics.surface_profile on the run's cell-wide bins
+    edges = np.arange(0.0, 2.0 + 0.01, 0.02)
+    act = res["frames"]["active"][-1].astype(bool)
+    ref = _metrics.surface_profile(res["frames"]["x_m"][-1], act, edges, 0.01)
+    np.testing.assert_allclose(plotting.profile_at(res, -1)[1], ref[1], equal_nan=True)
+
+
+def test_animate_writes_one_image_per_frame(run, tmp_path):
+    from PIL import Image
+
+    _, _, res = run
+    path = plotting.animate(res, tmp_path / "run.gif", field="speed", fps=4)
+    with Image.open(path) as im:
+        assert im.n_frames == res["frames"]["t_s"].shape[0] == 6
+        assert im.info.get("duration") == pytest.approx(250, abs=10)  # 4 frames per second [ms]
+    path = plotting.animate(res, tmp_path / "sub" / "two.gif", field="lambda", frames=[0, -1])
+    with Image.open(path) as im:
+        assert im.n_frames == 2
+    assert not list(tmp_path.glob("**/*.tmp.gif"))
+    with pytest.raises(ValueError, match="expected a .gif"):
+        plotting.animate(res, tmp_path / "run.mp4")
