@@ -9,10 +9,13 @@ Public API (modules are private; names are re-exported here):
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
   parameter NamedTuples
 * observables: ``runout``
+* plots of a saved run: the ``plotting`` module (``particles``, ``profiles``,
+  ``runout_vs_time``, ``animate``)
 """
 
 from importlib.metadata import PackageNotFoundError, version
 
+from . import plotting  # imports matplotlib only when a plot is made
 from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params, validate
 from ._observables import runout
 from ._rheology import (
@@ -66,4 +69,5 @@ __all__ = [
     "make_p2g",
     "make_step",
     "tait_pressure",
+    "plotting",
 ]
