@@ -12,11 +12,22 @@ HDF5 schema of ``result.h5`` (see docs/output.md):
   ``/frames/J`` (F, n), ``/frames/mu_pa_s`` (F, n), ``/frames/active`` (F, n) and one
   dataset per rheology internal field (``/frames/lambda`` for Coussot).  Frame 0 is the
   initial state.  Datasets grow by one frame at a time and the file is flushed after
-  each frame, so an interrupted run keeps every frame written so far.
+  each frame, so an interrupted run keeps every frame written so far.  ``/frames/t_s`` is
+  written last in a frame: its length is the number of complete frames, and
+  ``read_result`` reads that many (a frame cut off half-way is ignored).
+* root attributes written at the end: ``n_frames``, ``status`` (``complete``,
+  ``interrupted`` or ``failed``) and, for a failed run, ``error``.
+
+``checkpoint.h5`` (``write_checkpoint`` / ``read_checkpoint``): the full ``State`` pytree
+after frame ``frame`` (one dataset per field, ``internal/<name>`` for the rheology
+fields), written to a temporary file and renamed over the old one, so it is always a
+complete checkpoint; attributes ``frame``, ``config_hash`` (``config_hash`` of the scene)
+and ``meta_json`` (what the run needs to continue).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -67,6 +78,12 @@ def _jsonable(obj):
     return obj
 
 
+def config_hash(cfg: dict) -> str:
+    """SHA-256 of the validated scene (every key after defaults and overrides), as canonical JSON."""
+    text = json.dumps(_jsonable(cfg), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def params_dict(params) -> dict:
     mat = params.material
     d = {f"material.{k}": float(np.asarray(v)) for k, v in mat._asdict().items()}
@@ -77,8 +94,14 @@ def params_dict(params) -> dict:
 class FrameWriter:
     """Appends frames to ``result.h5``; usable as a context manager."""
 
-    def __init__(self, path, setup, code_version: str):
+    def __init__(self, path, setup, code_version: str, keep_frames: int | None = None):
+        """A new ``result.h5`` for ``setup``; or, with ``keep_frames``, reopen an existing one
+        (an interrupted run of the same scene), keep its first ``keep_frames`` frames and
+        append after them."""
         self.path = Path(path)
+        if keep_frames is not None:
+            self._reopen(setup, keep_frames)
+            return
         self.f = h5py.File(self.path, "w")
         s = setup
         a = self.f.attrs
@@ -115,22 +138,49 @@ class FrameWriter:
             )
         self.n = 0
 
+    def _reopen(self, setup, keep_frames: int):
+        self.f = h5py.File(self.path, "r+")
+        self.g = self.f["frames"]
+        n, dim = setup.scene.n_particles, setup.scene.dim
+        self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
+        for k in setup.state.internal:
+            self.fields[INTERNAL_NAMES.get(k, k)] = (n,)
+        have = min(self.g[name].shape[0] for name in ("t_s", *self.fields))
+        if have < keep_frames:
+            self.f.close()
+            raise ValueError(f"{self.path} holds {have} complete frames; the checkpoint needs {keep_frames}")
+        for name in ("t_s", *self.fields):
+            ds = self.g[name]
+            ds.resize((keep_frames,) + ds.shape[1:])
+        self.f.attrs["complete"] = False
+        for k in ("status", "error", "n_frames"):
+            if k in self.f.attrs:
+                del self.f.attrs[k]
+        self.n = keep_frames
+        self.f.flush()
+
     def append(self, state):
         vals = {"x_m": state.x, "v_m_s": state.v, "J": state.J, "mu_pa_s": state.mu, "active": state.active}
         for k, arr in state.internal.items():
             vals[INTERNAL_NAMES.get(k, k)] = arr
-        self.g["t_s"].resize((self.n + 1,))
-        self.g["t_s"][self.n] = float(state.t)
         for name in self.fields:
             ds = self.g[name]
             ds.resize((self.n + 1,) + ds.shape[1:])
             ds[self.n] = np.asarray(vals[name])
+        # the time last: len(t_s) counts complete frames only
+        self.g["t_s"].resize((self.n + 1,))
+        self.g["t_s"][self.n] = float(state.t)
         self.n += 1
         self.f.flush()
 
-    def close(self, complete: bool):
+    def close(self, complete: bool, status: str | None = None, error: str | None = None):
+        if not self.f:  # already closed
+            return
         self.f.attrs["complete"] = bool(complete)
         self.f.attrs["n_frames"] = self.n
+        self.f.attrs["status"] = status or ("complete" if complete else "interrupted")
+        if error is not None:
+            self.f.attrs["error"] = error
         self.f.close()
 
     def __enter__(self):
@@ -145,9 +195,48 @@ def read_result(path) -> dict:
     """Read ``result.h5`` back into numpy arrays: {'attrs': {...}, 'frames': {...}, 'particles': {...}}."""
     with h5py.File(path, "r") as f:
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-        frames = {k: f["frames"][k][()] for k in f["frames"]}
+        # a frame is complete once its time is written (t_s is written last)
+        nf = f["frames"]["t_s"].shape[0]
+        frames = {k: f["frames"][k][:nf] for k in f["frames"]}
         particles = {k: f["particles"][k][()] for k in f["particles"]}
     return {"attrs": attrs, "frames": frames, "particles": particles}
+
+
+def write_checkpoint(path, state, frame: int, cfg_hash: str, meta: dict):
+    """Write ``state`` (a ``State``) after ``frame`` frames to ``path`` atomically: a temporary
+    file in the same folder, fsync'd, then renamed over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        for name, val in state._asdict().items():
+            if isinstance(val, dict):
+                g = f.create_group(name)
+                for k, arr in val.items():
+                    g[k] = np.asarray(arr)
+            else:
+                f[name] = np.asarray(val)
+        f.attrs["frame"] = int(frame)
+        f.attrs["config_hash"] = cfg_hash
+        f.attrs["meta_json"] = json.dumps(_jsonable(meta))
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def read_checkpoint(path):
+    """``(state, frame, config_hash, meta)`` from ``write_checkpoint``; the state's arrays are
+    numpy arrays with the dtypes they were written with (exact, bit for bit)."""
+    from ._scene import State
+
+    with h5py.File(path, "r") as f:
+        vals = {}
+        for name in State._fields:
+            obj = f[name]
+            vals[name] = {k: obj[k][()] for k in obj} if isinstance(obj, h5py.Group) else obj[()]
+        frame = int(f.attrs["frame"])
+        h = f.attrs["config_hash"]
+        meta = json.loads(f.attrs["meta_json"])
+    return State(**vals), frame, (h.decode() if isinstance(h, bytes) else h), meta
 
 
 def plot_result(path_png, frames: dict, summary: dict, title: str, snapshot_times=(1.0, 5.0)):

@@ -1,7 +1,10 @@
 """Command line: ``mpmjax scenes | run | rheometer | bench | study | calibrate | sweep``.
 
 Exit status: 0 success, 2 invalid input (the message names the key, the value and the
-allowed range), 130 interrupted (frames already written stay readable), 1 other errors.
+allowed range; also a ``--resume`` that does not match), 3 a run stopped by a failed health
+check (NaN, absurd J, lost particles, CFL; frames already written stay readable), 130
+interrupted by Ctrl-C (143 by SIGTERM; frames already written stay readable and
+``mpmjax run --resume DIR`` continues), 1 other errors.
 """
 
 from __future__ import annotations
@@ -100,23 +103,143 @@ def _scenario_metrics(setup, state, times, kinetic) -> dict:
     }
 
 
-def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) -> dict:
+CHECKPOINT_EVERY = 10  # frames between checkpoints (default of --checkpoint-every)
+FAILED = 3  # exit status of a run stopped by a failed health check (mpmjax._health)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT (Ctrl-C) or SIGTERM; ``message`` says how to resume it."""
+
+    def __init__(self, signum: int, message: str = ""):
+        super().__init__(message)
+        self.signum, self.message = signum, message
+
+
+class _Signals:
+    """Turn SIGINT/SIGTERM into ``Interrupted`` and hold them back while a frame and its
+    checkpoint are being written (``with sig.hold():``), so that the files on disk always
+    match the state in memory.  Only installed in the main thread (Python delivers signals
+    there only)."""
+
+    def __init__(self):
+        import signal
+        import threading
+
+        self.pending = None
+        self.depth = 0
+        self.old = {}
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self.old[s] = signal.signal(s, self._handler)
+
+    def _handler(self, signum, frame):
+        if self.depth:
+            self.pending = signum
+        else:
+            raise Interrupted(signum)
+
+    def hold(self):
+        import contextlib
+
+        @contextlib.contextmanager
+        def cm():
+            self.depth += 1
+            try:
+                yield
+            finally:
+                self.depth -= 1
+            if not self.depth and self.pending is not None:
+                signum, self.pending = self.pending, None
+                raise Interrupted(signum)
+
+        return cm()
+
+    def restore(self):
+        import signal
+
+        for s, h in self.old.items():
+            signal.signal(s, h)
+
+
+def resume_command(out: Path) -> str:
+    import shlex
+
+    return f"mpmjax run --resume {shlex.quote(str(out))}"
+
+
+def run_scene(
+    scene: str | None,
+    out: Path,
+    overrides: list[str] | None,
+    quiet: bool = False,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    resume: bool = False,
+    on_frame=None,
+) -> dict:
     """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``.
 
-    Returns the summary dict.  Raises ``SceneError`` on invalid input and re-raises
-    ``KeyboardInterrupt`` after closing the files (frames written so far stay readable).
+    Every ``checkpoint_every`` frames (0: never) the full state is written to
+    ``out/checkpoint.h5`` (atomically), and again when the run is interrupted.  With
+    ``resume=True`` the run continues from that checkpoint: ``result.h5`` is cut back to the
+    checkpoint frame and continued, and the results equal those of an uninterrupted run bit
+    for bit.  ``scene``/``overrides`` may then be ``None`` (taken from the checkpoint); if
+    given they must describe the same validated scene.
+
+    After each frame the state is checked (``mpmjax._health``); a failed check closes the
+    files (frames written so far stay readable; summary.json gets ``status: failed``) and
+    raises ``RunFailure`` naming the step, the time, the particle and the likely cause.
+    ``on_frame(frame, state)``, if given, is called after each frame is on disk.
+
+    Returns the summary dict.  Raises ``SceneError`` on invalid input (including a
+    checkpoint that does not match the scene) and ``Interrupted`` (a ``KeyboardInterrupt``)
+    on SIGINT/SIGTERM after closing the files and writing the checkpoint.
     """
     import jax
+    import jax.numpy as jnp
     import numpy as np
 
-    from . import __version__, _metrics
-    from ._config import build, load_scene
-    from ._io import FrameWriter, atomic_write_text, plot_result, read_result
+    from . import __version__, _health, _metrics
+    from ._config import SceneError, build, load_scene
+    from ._io import FrameWriter, atomic_write_text, config_hash, plot_result, read_checkpoint, read_result
+    from ._io import write_checkpoint as _write_ckpt
     from ._observables import runout
     from ._simulate import make_advance
     from ._xdmf import write_xdmf
 
+    out = Path(out)
+    ckpt_path = out / "checkpoint.h5"
+    ckpt = None
+    if resume:
+        if not ckpt_path.is_file():
+            done = (out / "result.h5").is_file() and _result_complete(out / "result.h5")
+            raise SceneError(
+                f"--resume {out}: "
+                + ("the run there is already complete; nothing to resume" if done else f"no {ckpt_path.name} there")
+            )
+        try:
+            ckpt = read_checkpoint(ckpt_path)
+        except (OSError, KeyError, ValueError) as e:
+            raise SceneError(f"--resume {out}: {ckpt_path} cannot be read: {e}") from None
+        meta = ckpt[3]
+        if scene is None:
+            scene, overrides = meta["scene_source"], meta["overrides"]
+        overrides = overrides or []
+    if scene is None:
+        scene = "dambreak-lab"
+    overrides = list(overrides or [])
+    source = str(Path(scene).resolve()) if Path(scene).is_file() else str(scene)
     cfg = load_scene(scene, overrides)
+    chash = config_hash(cfg)
+    if ckpt is not None and ckpt[2] != chash:
+        old = ckpt[3].get("cfg", {})
+        diff = [k for k in sorted(set(old) | set(cfg)) if json.dumps(old.get(k)) != json.dumps(_jsonable(cfg.get(k)))]
+        shown = ", ".join(f"{k}: {old.get(k)!r} in the checkpoint, {_jsonable(cfg.get(k))!r} now" for k in diff[:6])
+        raise SceneError(
+            f"--resume {out}: the checkpoint was written for a different scene or different --set overrides "
+            f"(checkpoint: {ckpt[3]['scene_source']} {ckpt[3]['overrides']}; now: {source} {overrides}); "
+            f"differing keys: {shown or 'none found (the scene file changed)'}. Resume with the original scene "
+            f"and overrides (or none: `{resume_command(out)}`)"
+        )
     setup = build(cfg)
     sc, info = setup.scene, setup.info
     out.mkdir(parents=True, exist_ok=True)
@@ -140,51 +263,152 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
     def energy(st):
         return float(_metrics.kinetic_energy(np.asarray(st.v), np.asarray(st.vol0), np.asarray(st.active), rho))
 
-    state = setup.state
-    mass0 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
-    times, fronts = [0.0], [front(state)]
-    kinetic = [energy(state)]
-    prog = None if quiet else Progress(sc.n_frames, "run")
-    complete = False
-    t_run = time.perf_counter()
-    with FrameWriter(out / "result.h5", setup, __version__) as w:
-        w.append(state)
-        lost_reported = 0
-        for i in range(sc.n_frames):
-            state = advance(state, setup.params)
-            jax.block_until_ready(state.x)
-            w.append(state)
-            times.append((i + 1) * sc.steps_per_frame * sc.dt)
-            fronts.append(front(state))
-            kinetic.append(energy(state))
-            lost = int(state.n_lost)
-            if lost > lost_reported:
-                log(
-                    f"\nwarning: {lost - lost_reported} particle(s) left the grid or became non-finite by "
-                    f"t = {float(state.t):.3f} s (frame {i + 1}); they were deactivated and are counted in "
-                    "summary.json n_lost"
-                )
-                lost_reported = lost
-            if prog:
-                prog.update(i + 1, f"t = {float(state.t):7.3f} s, runout {fronts[-1]:.3f} m,")
-        complete = True
-    wall = time.perf_counter() - t_run
-    write_xdmf(out / "result.h5")  # result.xdmf: ParaView / VisIt sidecar of the closed result.h5
-    mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
-    summary = {
+    if ckpt is None:
+        state = setup.state
+        done = 0
+        acc = dict(
+            times=[0.0],
+            fronts=[front(state)],
+            kinetic=[energy(state)],
+            lost_reported=0,
+            n_outflow=0,
+            wall_s=0.0,
+            mass0=float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho,
+        )
+        ckpt_path.unlink(missing_ok=True)  # a stale checkpoint of an earlier run here
+    else:
+        st_np, done, _, meta = ckpt
+        state = jax.tree_util.tree_map(jnp.asarray, st_np)
+        acc = meta["acc"]
+        log(f"resuming {out} from the checkpoint at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s)")
+    last_ckpt = done if ckpt is not None else -1
+    meta_base = dict(scene_source=source, overrides=overrides, cfg=_jsonable(cfg), code_version=__version__)
+
+    def write_checkpoint(st, frame):
+        nonlocal last_ckpt
+        _write_ckpt(ckpt_path, st, frame, chash, dict(meta_base, acc=acc))
+        last_ckpt = frame
+
+    base_summary = {
         "scene": cfg["name"],
+        "scene_source": source,
+        "overrides": overrides,
         "dim": sc.dim,
         "n_particles": sc.n_particles,
         "n_steps": sc.n_steps,
         "dt_s": sc.dt,
         "t_end_s": sc.t_end,
+    }
+    prog = None if quiet else Progress(sc.n_frames, "run")
+    sig = _Signals()
+    t_run = time.perf_counter()
+    wall0 = acc["wall_s"]
+    w = None
+    try:
+        try:
+            with sig.hold():
+                if ckpt is None:
+                    w = FrameWriter(out / "result.h5", setup, __version__)
+                    w.append(state)
+                else:
+                    try:
+                        w = FrameWriter(out / "result.h5", setup, __version__, keep_frames=done + 1)
+                    except (OSError, KeyError, ValueError) as e:
+                        raise SceneError(f"--resume {out}: {out / 'result.h5'} cannot be continued: {e}") from None
+            for i in range(done, sc.n_frames):
+                new = advance(state, setup.params)
+                jax.block_until_ready(new.x)
+                probs, outflow = _health.check(sc, cfg, state, new)
+                if probs:
+                    raise _health.failure(sc, setup.params, cfg, state, new, probs, i + 1, log=log)
+                with sig.hold():
+                    w.append(new)
+                    state, done = new, i + 1
+                    acc["times"].append(done * sc.steps_per_frame * sc.dt)
+                    acc["fronts"].append(front(state))
+                    acc["kinetic"].append(energy(state))
+                    acc["n_outflow"] += int(len(outflow))
+                    acc["wall_s"] = wall0 + time.perf_counter() - t_run
+                    if checkpoint_every and done % checkpoint_every == 0 and done < sc.n_frames:
+                        write_checkpoint(state, done)
+                lost = int(state.n_lost)
+                if lost > acc["lost_reported"]:
+                    log(
+                        f"\nnote: {lost - acc['lost_reported']} particle(s) left the domain through an open face by "
+                        f"t = {float(state.t):.3f} s (frame {done}); they were deactivated and are counted in "
+                        "summary.json n_lost"
+                    )
+                    acc["lost_reported"] = lost
+                if prog:
+                    prog.update(done, f"t = {float(state.t):7.3f} s, runout {acc['fronts'][-1]:.3f} m,")
+                if on_frame is not None:
+                    on_frame(done, state)
+        except KeyboardInterrupt as e:
+            signum = getattr(e, "signum", 2)
+            sig.depth += 1  # a second Ctrl-C while the files are closed is only recorded
+            if w is not None and done > last_ckpt:
+                write_checkpoint(state, done)
+            if w is not None:
+                w.close(False, status="interrupted")
+            msg = (
+                f"interrupted at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s): frames 0..{done} remain "
+                f"readable in {out / 'result.h5'}; the state is saved in {ckpt_path}. Resume with: "
+                f"{resume_command(out)}"
+            )
+            atomic_write_text(
+                out / "summary.json",
+                json.dumps(
+                    dict(base_summary, status="interrupted", frames_written=done, message=msg, complete=False),
+                    indent=2,
+                ),
+            )
+            raise Interrupted(signum, msg) from None
+        except _health.RunFailure as e:
+            sig.depth += 1
+            w.close(False, status="failed", error=str(e))
+            atomic_write_text(
+                out / "summary.json",
+                json.dumps(
+                    _jsonable(
+                        dict(
+                            base_summary,
+                            status="failed",
+                            error=str(e),
+                            failure=e.info,
+                            frames_written=done,
+                            times_s=acc["times"],
+                            runout_m=acc["fronts"],
+                            complete=False,
+                        )
+                    ),
+                    indent=2,
+                ),
+            )
+            raise
+        except BaseException:
+            if w is not None:
+                w.close(False, status="interrupted")
+            raise
+        with sig.hold():
+            w.close(True, status="complete")
+    finally:
+        sig.restore()
+    ckpt_path.unlink(missing_ok=True)  # complete: nothing left to resume
+    wall = acc["wall_s"]
+    times, fronts, kinetic = acc["times"], acc["fronts"], acc["kinetic"]
+    write_xdmf(out / "result.h5")  # result.xdmf: ParaView / VisIt sidecar of the closed result.h5
+    mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
+    summary = {
+        **base_summary,
+        "status": "complete",
         "wall_s": wall,
         "compile_s": compile_s,
         "particle_steps_per_s": sc.n_particles * sc.n_steps / wall,
-        "mass_initial_kg": mass0,
+        "mass_initial_kg": acc["mass0"],
         "mass_final_kg": mass1,
         "mass_unit": "kg per metre of depth" if sc.dim == 2 else "kg",
         "n_lost": int(state.n_lost),
+        "n_outflow": acc["n_outflow"],
         "times_s": times,
         "runout_m": fronts,
         "final_runout_m": fronts[-1],
@@ -209,7 +433,7 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
         "cell_size_m": sc.h,
         "code_version": __version__,
         "jax_backend": jax.default_backend(),
-        "complete": complete,
+        "complete": True,
     }
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     res = read_result(out / "result.h5")
@@ -222,14 +446,55 @@ def run_scene(scene: str, out: Path, overrides: list[str], quiet: bool = False) 
     return summary
 
 
+def _jsonable(obj):
+    from ._io import _jsonable as j
+
+    return j(obj)
+
+
+def _result_complete(path: Path) -> bool:
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return bool(f.attrs.get("complete", False))
+    except OSError:
+        return False
+
+
 def cmd_run(args) -> int:
     from ._config import SceneError
+    from ._health import RunFailure
 
-    out = Path(args.out) if args.out else Path("runs") / Path(args.scene).stem
+    if args.checkpoint_every < 0:
+        return _fail(f"--checkpoint-every = {args.checkpoint_every} is invalid: allowed range: >= 0 frames (0: never)")
+    if args.resume:
+        out = Path(args.resume)
+        if args.out and Path(args.out).resolve() != out.resolve():
+            return _fail(f"--out {args.out} and --resume {args.resume} name different folders; give one")
+    else:
+        out = Path(args.out) if args.out else Path("runs") / Path(args.scene or "dambreak-lab").stem
     try:
-        run_scene(args.scene, out, args.set or [], quiet=args.quiet)
+        run_scene(
+            args.scene,
+            out,
+            args.set,
+            quiet=args.quiet,
+            checkpoint_every=args.checkpoint_every,
+            resume=bool(args.resume),
+        )
     except SceneError as e:
         return _fail(str(e))
+    except RunFailure as e:
+        print(
+            f"\nmpmjax: {e}\nframes before the failure remain readable in {out / 'result.h5'}; "
+            f"summary.json has status 'failed'",
+            file=sys.stderr,
+        )
+        return FAILED
+    except Interrupted as e:
+        print(f"\n{e.message}", file=sys.stderr)
+        return 128 + e.signum
     except KeyboardInterrupt:
         print(f"\ninterrupted: frames written so far remain readable in {out / 'result.h5'}", file=sys.stderr)
         return 130
@@ -269,12 +534,29 @@ def main(argv=None) -> int:
     ps.add_argument("--keys", action="store_true", help="list every scene key with unit, default and range")
     ps.set_defaults(fn=cmd_scenes)
     pr = sub.add_parser("run", help="run a scene and write result.h5, summary.json and result.png")
-    pr.add_argument("scene", nargs="?", default="dambreak-lab", help="built-in scene name or TOML path")
+    pr.add_argument(
+        "scene",
+        nargs="?",
+        default=None,
+        help="built-in scene name or TOML path (default dambreak-lab; with --resume: the checkpoint's)",
+    )
     pr.add_argument("--out", help="output directory (default runs/SCENE)")
     pr.add_argument(
         "--set", action="append", metavar="KEY=VALUE", help="override a scene key, e.g. material.mu0_pa_s=2"
     )
     pr.add_argument("--quiet", action="store_true", help="no progress output")
+    pr.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=CHECKPOINT_EVERY,
+        metavar="N",
+        help=f"write OUT/checkpoint.h5 every N frames (default {CHECKPOINT_EVERY}; 0: only on interrupt)",
+    )
+    pr.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="continue the interrupted run in DIR from DIR/checkpoint.h5 (same scene and --set, or none)",
+    )
     pr.set_defaults(fn=cmd_run)
     try:
         from . import rheometer
