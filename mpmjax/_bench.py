@@ -1,4 +1,4 @@
-"""``mpmjax bench``: particle-steps per second, measured (not asserted).
+"""``mpmjax bench``: particle-steps per second, gradient cost and batching, measured (not asserted).
 
 Configurations:
 
@@ -6,9 +6,20 @@ Configurations:
 * ``mpm88-equivalent``: 2D, 128 x 128 cells on the unit square, 8192 particles, quadratic
   B-spline, APIC, a weakly compressible Newtonian fluid under gravity (the configuration
   of Taichi's ``mpm88`` example, written with this package's general step).
+* ``scaling``: the same fluid as a block filling [0, 0.5]^dim of the unit box (2 particles per
+  cell per axis) at about 1e3, 1e4 and 1e5 particles (1e6 with ``--large``), 2D and 3D,
+  float32 and float64.  The cell size is 1/k with k = n^(1/dim), so the particle count is k^dim
+  and the grid has (k + 7)^dim nodes.
+* ``gradient``: ``jax.grad`` of the final centroid x of the default scene with respect to the
+  Coussot mu0, through ``simulate`` (checkpointed scan, 50 steps per checkpointed chunk), against
+  the forward run of the same function, at a few step counts; with XLA's compiled memory
+  estimate (``Compiled.memory_analysis()``: temporary buffers, not the process peak).
+* ``batch``: 16 runs of the default scene with 16 values of mu0 as one ``vmap`` batch, against
+  the same 16 runs one after another (one compiled function, reused).
 
-Each measurement compiles first (reported separately), then times ``--steps`` steps,
-best of three repetitions.
+Each measurement compiles first (reported separately), then times the compiled call, best of
+``reps`` repetitions.  ``--quick`` shrinks everything (1e3 particles, few steps, one
+repetition) so that a test can check the output in seconds; its figures are not benchmarks.
 """
 
 from __future__ import annotations
@@ -61,6 +72,184 @@ def _measure(setup, steps: int, reps: int = 3) -> dict:
     }
 
 
+def _fluid(dim: int, n_target: int, dtype: str):
+    """The mpm88 fluid as a block filling [0, 0.5]^dim of the unit box, about n_target particles."""
+    from ._config import build, validate
+
+    k = max(4, 2 * round(n_target ** (1.0 / dim) / 2))  # even: the block edge 0.5 is a whole cell count
+    raw = json.loads(json.dumps(MPM88))
+    raw["name"] = f"fluid-{dim}d"
+    raw["domain"] = {"dim": dim, "lo_m": [0.0] * dim, "hi_m": [1.0] * dim, "cell_size_m": 1.0 / k}
+    raw["boundary"] = {f"{a}_{s}": "slip" for a in "xyz"[:dim] for s in ("lo", "hi")}
+    raw["numerics"]["dtype"] = dtype
+    raw["bodies"] = [{"lo_m": [0.0] * dim, "hi_m": [0.5] * dim}]
+    return build(validate(raw))
+
+
+COMBOS = ((2, "float32"), (2, "float64"), (3, "float32"), (3, "float64"))
+
+
+def bench_scaling(sizes, combos=COMBOS, target=1e7, min_steps=20, reps=3, log=print):
+    """Particle-steps/s against the particle count, per (dim, dtype); steps ~ target / n."""
+    rows = []
+    for dim, dtype in combos:
+        for n in sizes:
+            setup = _fluid(dim, int(n), dtype)
+            steps = max(min_steps, int(target // setup.scene.n_particles))
+            r = _measure(setup, steps, reps)
+            r.update(dim=dim, dtype=dtype, n_target=int(n), grid_nodes=setup.scene.n_nodes)
+            rows.append(r)
+            log(
+                f"scaling {dim}D {dtype} n = {r['n_particles']:8d} ({r['grid_nodes']} nodes), {steps} steps: "
+                f"{r['particle_steps_per_s']:.3g} particle-steps/s (compile {r['compile_s']:.1f} s)"
+            )
+    return rows
+
+
+def _timed(f, *a, reps=3):
+    import jax
+
+    best = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        jax.block_until_ready(f(*a))
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _mem(compiled) -> dict:
+    try:
+        m = compiled.memory_analysis()
+        return {
+            "temp_bytes": int(m.temp_size_in_bytes),
+            "argument_bytes": int(m.argument_size_in_bytes),
+            "output_bytes": int(m.output_size_in_bytes),
+        }
+    except Exception:  # noqa: BLE001  (not every backend implements it)
+        return {"temp_bytes": None, "argument_bytes": None, "output_bytes": None}
+
+
+def _default_setup(dtype: str, coarse: bool):
+    from ._config import build, load_scene
+
+    ov = {"numerics.dtype": dtype}
+    if coarse:
+        ov["domain.cell_size_m"] = 0.02
+    return build(load_scene("dambreak-lab", ov))
+
+
+def bench_gradient(step_counts, dtype="float32", chunk=50, reps=3, coarse=False, log=print):
+    """Forward and reverse-mode (jax.grad w.r.t. mu0) time of the final centroid x, per step count."""
+    import jax
+    import jax.numpy as jnp
+
+    from ._simulate import simulate
+
+    setup = _default_setup(dtype, coarse)
+    rows = []
+    for steps in step_counts:
+        spf = min(chunk, steps)
+        if steps % spf:
+            raise ValueError(f"gradient step count {steps} is not a multiple of the chunk {spf}")
+        sc = setup.scene.replace(steps_per_frame=spf, n_frames=steps // spf)
+
+        def loss(mu0, sc=sc):
+            params = setup.params._replace(material=setup.params.material._replace(mu0=mu0))
+            final, _ = simulate(sc, setup.state, params)
+            w = final.active.astype(final.x.dtype)
+            return jnp.sum(final.x[:, 0] * w) / jnp.sum(w)
+
+        mu0 = setup.params.material.mu0
+        t0 = time.perf_counter()
+        fwd = jax.jit(loss).lower(mu0).compile()
+        c_fwd = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        grd = jax.jit(jax.value_and_grad(loss)).lower(mu0).compile()
+        c_grd = time.perf_counter() - t0
+        t_f = _timed(fwd, mu0, reps=reps)
+        t_g = _timed(grd, mu0, reps=reps)
+        val, g = grd(mu0)
+        r = {
+            "steps": steps,
+            "steps_per_checkpoint": spf,
+            "n_particles": sc.n_particles,
+            "forward_s": t_f,
+            "gradient_s": t_g,
+            "gradient_over_forward": t_g / t_f,
+            "compile_forward_s": c_fwd,
+            "compile_gradient_s": c_grd,
+            "centroid_x_m": float(val),
+            "d_centroid_d_mu0_m_per_pa_s": float(g),
+            "forward_memory": _mem(fwd),
+            "gradient_memory": _mem(grd),
+        }
+        rows.append(r)
+        log(
+            f"gradient {steps:5d} steps: forward {t_f:.3f} s, value_and_grad {t_g:.3f} s, ratio {t_g / t_f:.2f}; "
+            f"XLA temp memory {_fmt_bytes(r['forward_memory']['temp_bytes'])} / "
+            f"{_fmt_bytes(r['gradient_memory']['temp_bytes'])}"
+        )
+    return rows
+
+
+def _fmt_bytes(b):
+    return "n/a" if b is None else f"{b / 2**20:.1f} MiB"
+
+
+def bench_batch(steps: int, batch: int = 16, dtype="float32", reps=3, coarse=False, log=print):
+    """``vmap`` over ``batch`` values of mu0 against ``batch`` sequential calls of one compiled run."""
+    import jax
+    import jax.numpy as jnp
+
+    from ._simulate import make_chunk
+
+    setup = _default_setup(dtype, coarse)
+    chunk = make_chunk(setup.scene, steps)
+
+    def one(mu0):
+        params = setup.params._replace(material=setup.params.material._replace(mu0=mu0))
+        return chunk(setup.state, params).x
+
+    mu0s = jnp.linspace(2.0, 8.0, batch).astype(setup.params.material.mu0.dtype)
+    t0 = time.perf_counter()
+    single = jax.jit(one).lower(mu0s[0]).compile()
+    c_single = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    batched = jax.jit(jax.vmap(one)).lower(mu0s).compile()
+    c_batch = time.perf_counter() - t0
+
+    def sequential(ms):
+        return [single(m) for m in ms]
+
+    t_seq = _timed(sequential, list(mu0s), reps=reps)
+    t_bat = _timed(batched, mu0s, reps=reps)
+    xb = batched(mu0s)
+    spread = float(jnp.max(jnp.abs(xb[-1] - single(mu0s[-1]))))
+    r = {
+        "batch": batch,
+        "steps": steps,
+        "n_particles": setup.scene.n_particles,
+        "sequential_s": t_seq,
+        "batched_s": t_bat,
+        "sequential_over_batched": t_seq / t_bat,
+        "compile_single_s": c_single,
+        "compile_batched_s": c_batch,
+        "max_abs_diff_batched_vs_single_m": spread,
+    }
+    log(f"batch {batch} x {steps} steps: sequential {t_seq:.3f} s, vmap {t_bat:.3f} s, speed-up {t_seq / t_bat:.2f}")
+    return r
+
+
+def add_arguments(p):
+    p.add_argument("--out", default="bench.json", help="JSON file to write")
+    p.add_argument("--steps", type=int, default=2000, help="steps per measurement (default scene, mpm88)")
+    p.add_argument("--dtype", default="float32", choices=("float32", "float64"), help="default scene, mpm88, grad")
+    p.add_argument("--quick", action="store_true", help="tiny sizes and step counts (tests; not a benchmark)")
+    p.add_argument(
+        "--large", action="store_true", help="add 1e6 particles to the scaling runs (minutes per point on 2 cores)"
+    )
+
+
 def run_bench(args) -> int:
     import jax
 
@@ -68,15 +257,33 @@ def run_bench(args) -> int:
 
     if args.steps < 1:
         raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")
-    dt_over = [f"numerics.dtype={args.dtype!r}".replace("'", '"')]
+    quick = bool(getattr(args, "quick", False))
+    large = bool(getattr(args, "large", False))
+
+    def log(*a):
+        print(*a, file=sys.stderr, flush=True)
+
+    reps = 1 if quick else 3
+    steps = min(args.steps, 20) if quick else args.steps
     results = {}
-    cfg = load_scene("dambreak-lab", dt_over)
-    results["default-scene"] = _measure(build(cfg), args.steps)
+    cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
+    results["default-scene"] = _measure(build(cfg), steps, reps)
     raw = json.loads(json.dumps(MPM88))
     raw["numerics"]["dtype"] = args.dtype
     setup = build(validate(raw))
     assert setup.scene.n_particles == 8192
-    results["mpm88-equivalent"] = _measure(setup, args.steps)
+    results["mpm88-equivalent"] = _measure(setup, steps, reps)
+    for k, r in results.items():
+        log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
+    sizes = [1e3] if quick else [1e3, 1e4, 1e5] + ([1e6] if large else [])
+    # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
+    combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
+    scaling = bench_scaling(
+        sizes, combos, target=1e4 if quick else 1e7, min_steps=5 if quick else 20, reps=reps, log=log
+    )
+    gsteps = [10] if quick else [100, 400, 1600]
+    gradient = bench_gradient(gsteps, args.dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log)
+    batch = bench_batch(5 if quick else 400, 16, args.dtype, reps=reps, coarse=quick, log=log)
     meta = {
         "machine": platform.machine(),
         "processor": platform.processor(),
@@ -86,8 +293,15 @@ def run_bench(args) -> int:
         "backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
         "dtype": args.dtype,
+        "quick": quick,
+        "scaling_sizes": sizes,
+        "memory_source": "XLA Compiled.memory_analysis(): temporary buffer bytes of the compiled function",
+        "note_1e6": None
+        if large
+        else "1e6 particles skipped (pass --large): on 2 CPU cores one step of 1e6 "
+        "particles takes ~0.3-1 s, so a measurement of a few dozen steps takes minutes per point",
     }
-    doc = {"meta": meta, "results": results}
+    doc = {"meta": meta, "results": results, "scaling": scaling, "gradient": gradient, "batch": batch}
     with open(args.out, "w") as f:
         json.dump(doc, f, indent=2)
     print(f"{'configuration':20s} {'particles':>9s} {'steps':>6s} {'compile s':>9s} {'wall s':>8s} {'p-steps/s':>10s}")
@@ -96,5 +310,22 @@ def run_bench(args) -> int:
             f"{k:20s} {r['n_particles']:9d} {r['steps']:6d} {r['compile_s']:9.2f} {r['best_wall_s']:8.3f} "
             f"{r['particle_steps_per_s']:10.3g}"
         )
+    for r in scaling:
+        k = f"fluid {r['dim']}D {r['dtype']}"
+        print(
+            f"{k:20s} {r['n_particles']:9d} {r['steps']:6d} {r['compile_s']:9.2f} {r['best_wall_s']:8.3f} "
+            f"{r['particle_steps_per_s']:10.3g}"
+        )
+    for r in gradient:
+        print(
+            f"grad/forward at {r['steps']} steps: {r['gradient_s']:.3f} / {r['forward_s']:.3f} s = "
+            f"{r['gradient_over_forward']:.2f}; XLA temp {_fmt_bytes(r['gradient_memory']['temp_bytes'])} vs "
+            f"{_fmt_bytes(r['forward_memory']['temp_bytes'])}"
+        )
+    print(
+        f"batch of {batch['batch']} (vmap) vs {batch['batch']} sequential runs, {batch['steps']} steps: "
+        f"{batch['batched_s']:.3f} vs {batch['sequential_s']:.3f} s, sequential/batched = "
+        f"{batch['sequential_over_batched']:.2f}"
+    )
     print(f"({meta['backend']}, {meta['cpus']} cpus, jax {meta['jax']}, {args.dtype}); wrote {args.out}")
     return 0

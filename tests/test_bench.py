@@ -1,0 +1,80 @@
+"""``mpmjax bench --quick``: the output's schema and sanity (a benchmark measures; no speed is asserted).
+
+The quick mode shrinks every measurement (1e3 particles, a few steps, one repetition); its
+figures are not benchmarks, only evidence that each measurement ran and produced a number.
+"""
+
+import json
+import math
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def doc(tmp_path_factory):
+    from mpmjax.cli import main
+
+    out = tmp_path_factory.mktemp("bench") / "bench.json"
+    assert main(["bench", "--quick", "--out", str(out)]) == 0
+    return json.loads(out.read_text())
+
+
+def _pos(x):
+    return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
+
+
+def test_top_level_keys_and_meta(doc):
+    assert set(doc) == {"meta", "results", "scaling", "gradient", "batch"}
+    m = doc["meta"]
+    assert m["quick"] is True and m["backend"] and m["jax"] and m["cpus"] >= 1
+    assert m["scaling_sizes"] == [1e3] and "1e6" in m["note_1e6"]
+
+
+def test_default_scene_and_mpm88_entries_are_kept(doc):
+    r = doc["results"]
+    assert set(r) == {"default-scene", "mpm88-equivalent"}
+    assert r["mpm88-equivalent"]["n_particles"] == 8192
+    assert r["default-scene"]["n_particles"] == 1600
+    for e in r.values():
+        for k in ("best_wall_s", "compile_s", "particle_steps_per_s"):
+            assert _pos(e[k]), (k, e[k])
+        assert e["n_lost"] == 0
+        # particle-steps/s is what it says: particles x steps / wall
+        assert e["particle_steps_per_s"] == pytest.approx(e["n_particles"] * e["steps"] / e["best_wall_s"])
+
+
+def test_scaling_rows_cover_both_dims_and_dtypes(doc):
+    rows = doc["scaling"]
+    assert {r["dim"] for r in rows} == {2, 3} and {r["dtype"] for r in rows} == {"float32", "float64"}
+    for r in rows:
+        # the block [0, 0.5]^dim at 2 per cell per axis holds k^dim particles, k = 1/h
+        assert r["n_particles"] == pytest.approx(r["n_target"], rel=0.1)
+        assert r["grid_nodes"] > r["n_particles"] / 2 ** r["dim"]
+        assert r["n_lost"] == 0
+        assert _pos(r["particle_steps_per_s"]) and _pos(r["best_wall_s"]) and r["steps"] >= 5
+
+
+def test_gradient_rows(doc):
+    for r in doc["gradient"]:
+        for k in ("forward_s", "gradient_s", "gradient_over_forward", "compile_forward_s", "compile_gradient_s"):
+            assert _pos(r[k]), (k, r[k])
+        assert r["gradient_over_forward"] == pytest.approx(r["gradient_s"] / r["forward_s"])
+        assert math.isfinite(r["d_centroid_d_mu0_m_per_pa_s"]) and math.isfinite(r["centroid_x_m"])
+        for mem in (r["forward_memory"], r["gradient_memory"]):
+            assert set(mem) == {"temp_bytes", "argument_bytes", "output_bytes"}
+            assert mem["temp_bytes"] is None or mem["temp_bytes"] >= 0
+
+
+def test_batch_entry(doc):
+    b = doc["batch"]
+    assert b["batch"] == 16
+    for k in ("sequential_s", "batched_s", "sequential_over_batched"):
+        assert _pos(b[k]), (k, b[k])
+    # the batch member and the single run compute the same thing (float32 round-off)
+    assert b["max_abs_diff_batched_vs_single_m"] < 1e-4
+
+
+def test_bad_steps_is_a_usage_error(tmp_path):
+    from mpmjax.cli import main
+
+    assert main(["bench", "--steps", "0", "--out", str(tmp_path / "b.json")]) == 2
