@@ -566,10 +566,10 @@ def main(argv=None) -> int:
         prh.set_defaults(fn=cmd_rheometer)
     except ImportError:  # pragma: no cover
         pass
-    pb = sub.add_parser("bench", help="measure particle-steps per second (default scene, mpm88-equivalent)")
-    pb.add_argument("--out", default="bench.json", help="JSON file to write")
-    pb.add_argument("--steps", type=int, default=2000, help="steps per measurement")
-    pb.add_argument("--dtype", default="float32", choices=("float32", "float64"))
+    pb = sub.add_parser("bench", help="measure particle-steps/s, scaling, gradient/forward time and vmap batching")
+    from . import _bench
+
+    _bench.add_arguments(pb)
     pb.set_defaults(fn=cmd_bench)
     from . import _stress
 
