@@ -161,6 +161,26 @@ class _Signals:
             signal.signal(s, h)
 
 
+_ADVANCE_CACHE: dict = {}
+
+
+def _compiled_advance(sc, state, params):
+    """The compiled one-frame advance for this scene and these array shapes, kept for the
+    process (a few entries), so repeated runs of one scene (a resume, tests, notebooks)
+    compile once and run the very same program."""
+    import jax
+
+    from ._simulate import make_advance
+
+    leaves, tree = jax.tree_util.tree_flatten((state, params))
+    key = (sc, tree, tuple((a.shape, str(a.dtype)) for a in leaves))
+    if key not in _ADVANCE_CACHE:
+        if len(_ADVANCE_CACHE) >= 4:
+            _ADVANCE_CACHE.pop(next(iter(_ADVANCE_CACHE)))
+        _ADVANCE_CACHE[key] = make_advance(sc).lower(state, params).compile()
+    return _ADVANCE_CACHE[key]
+
+
 def resume_command(out: Path) -> str:
     import shlex
 
@@ -203,7 +223,6 @@ def run_scene(
     from ._io import FrameWriter, atomic_write_text, config_hash, plot_result, read_checkpoint, read_result
     from ._io import write_checkpoint as _write_ckpt
     from ._observables import runout
-    from ._simulate import make_advance
     from ._xdmf import write_xdmf
 
     out = Path(out)
@@ -250,7 +269,7 @@ def run_scene(
         f"{sc.viscous_update} viscous update), {sc.n_steps} steps to t = {sc.t_end:g} s"
     )
     t0 = time.perf_counter()
-    advance = make_advance(sc).lower(setup.state, setup.params).compile()
+    advance = _compiled_advance(sc, setup.state, setup.params)
     compile_s = time.perf_counter() - t0
     log(f"compiled in {compile_s:.1f} s")
     rho = float(setup.params.material.rho)

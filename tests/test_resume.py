@@ -1,0 +1,157 @@
+"""Interrupted runs: checkpoint, resume and the files left behind (docs/output.md).
+
+A coarse dam break (h = 2 cm, 400 particles, 20 frames of 0.03 s, 24 steps each) is run once without
+interruption; interrupted runs (an exception raised from the per-frame hook, a simulated
+crash, a real SIGINT to the command line) are resumed and must give the same result.h5
+arrays bit for bit: the resumed run starts from the exact checkpointed state and runs the
+same compiled frame advance, so there is no tolerance.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from mpmjax import cli
+from mpmjax._io import read_checkpoint, read_result
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = "dambreak-lab"
+OVER = ["time.t_end_s=0.6", "time.n_frames=20", "domain.cell_size_m=0.02"]
+N_FRAMES = 20
+
+
+def _datasets(path) -> dict:
+    with h5py.File(path, "r") as f:
+        out = {}
+        f.visititems(lambda name, obj: out.__setitem__(name, obj[()]) if isinstance(obj, h5py.Dataset) else None)
+    return out
+
+
+def _assert_same_result(a, b):
+    da, db = _datasets(a), _datasets(b)
+    assert sorted(da) == sorted(db)
+    for k in da:
+        assert da[k].dtype == db[k].dtype and da[k].shape == db[k].shape, k
+        np.testing.assert_array_equal(da[k], db[k], err_msg=k)
+
+
+def _same_summary(a, b):
+    sa, sb = (json.loads((p / "summary.json").read_text()) for p in (a, b))
+    timing = {"wall_s", "compile_s", "particle_steps_per_s"}
+    assert {k: v for k, v in sa.items() if k not in timing} == {k: v for k, v in sb.items() if k not in timing}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref")
+    s = cli.run_scene(SCENE, out, OVER, quiet=True, checkpoint_every=3)
+    assert s["status"] == "complete" and s["complete"]
+    assert not (out / "checkpoint.h5").exists()  # a complete run leaves nothing to resume
+    return out
+
+
+def _stop_at(k, exc):
+    def hook(frame, state):
+        if frame == k:
+            raise exc
+
+    return hook
+
+
+def test_same_input_twice_gives_identical_results(reference, tmp_path):
+    cli.run_scene(SCENE, tmp_path, OVER, quiet=True, checkpoint_every=0)
+    _assert_same_result(reference / "result.h5", tmp_path / "result.h5")
+    _same_summary(reference, tmp_path)
+    assert read_result(tmp_path / "result.h5")["frames"]["x_m"].shape == (N_FRAMES + 1, 400, 2)
+
+
+def test_interrupt_then_resume_is_bit_for_bit(reference, tmp_path):
+    with pytest.raises(cli.Interrupted) as e:
+        cli.run_scene(SCENE, tmp_path, OVER, quiet=True, checkpoint_every=3, on_frame=_stop_at(7, KeyboardInterrupt()))
+    assert e.value.signum == signal.SIGINT
+    assert f"mpmjax run --resume {tmp_path}" in e.value.message and "frame 7/20" in e.value.message
+    # the partial file is readable and holds exactly frames 0..7 of the uninterrupted run
+    part = read_result(tmp_path / "result.h5")
+    ref = read_result(reference / "result.h5")
+    assert part["attrs"]["status"] == "interrupted" and not part["attrs"]["complete"]
+    assert part["frames"]["t_s"].shape == (8,)
+    for k in ref["frames"]:
+        np.testing.assert_array_equal(part["frames"][k], ref["frames"][k][:8], err_msg=k)
+    summ = json.loads((tmp_path / "summary.json").read_text())
+    assert summ["status"] == "interrupted" and summ["frames_written"] == 7
+    # the interrupt itself checkpointed frame 7 (the periodic one was at frame 6)
+    state, frame, _, meta = read_checkpoint(tmp_path / "checkpoint.h5")
+    assert frame == 7 and meta["scene_source"] == SCENE and meta["overrides"] == OVER
+    np.testing.assert_array_equal(state.x, ref["frames"]["x_m"][7])
+
+    s = cli.run_scene(None, tmp_path, None, quiet=True, resume=True)  # scene and overrides from the checkpoint
+    assert s["status"] == "complete"
+    _assert_same_result(reference / "result.h5", tmp_path / "result.h5")
+    _same_summary(reference, tmp_path)
+    assert not (tmp_path / "checkpoint.h5").exists()
+
+
+def test_crash_after_a_checkpoint_resumes_from_it(reference, tmp_path):
+    # a crash (here an error raised after frame 11) does not write a checkpoint: the last
+    # periodic one (frame 9) is used and result.h5, which holds frames 0..11, is cut back to 0..9
+    with pytest.raises(RuntimeError, match="power cut"):
+        cli.run_scene(
+            SCENE, tmp_path, OVER, quiet=True, checkpoint_every=3, on_frame=_stop_at(11, RuntimeError("power cut"))
+        )
+    assert read_result(tmp_path / "result.h5")["frames"]["t_s"].shape == (12,)
+    assert read_checkpoint(tmp_path / "checkpoint.h5")[1] == 9
+    cli.run_scene(SCENE, tmp_path, OVER, quiet=True, resume=True)  # same scene and overrides given again
+    _assert_same_result(reference / "result.h5", tmp_path / "result.h5")
+    _same_summary(reference, tmp_path)
+
+
+def test_resume_refuses_another_scene(tmp_path, capsys):
+    with pytest.raises(cli.Interrupted):
+        cli.run_scene(SCENE, tmp_path, OVER, quiet=True, on_frame=_stop_at(2, KeyboardInterrupt()))
+    other = OVER + ["material.mu0_pa_s=5"]
+    argv = ["run", SCENE, "--quiet", "--resume", str(tmp_path)] + [a for o in other for a in ("--set", o)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "material.mu0_pa_s: 4.0 in the checkpoint, 5.0 now" in err and "Traceback" not in err
+    # nothing was touched: the checkpoint and the partial result are still there
+    assert read_checkpoint(tmp_path / "checkpoint.h5")[1] == 2
+    assert read_result(tmp_path / "result.h5")["frames"]["t_s"].shape == (3,)
+
+
+def test_resume_of_a_complete_run_or_empty_folder_is_an_input_error(reference, tmp_path, capsys):
+    assert cli.main(["run", "--quiet", "--resume", str(reference)]) == 2
+    assert "already complete" in capsys.readouterr().err
+    assert cli.main(["run", "--quiet", "--resume", str(tmp_path)]) == 2
+    assert "no checkpoint.h5" in capsys.readouterr().err
+    assert cli.main(["run", "--quiet", "--checkpoint-every", "-1", "--out", str(tmp_path)]) == 2
+    assert "--checkpoint-every" in capsys.readouterr().err
+
+
+def test_ctrl_c_on_the_command_line_exits_130_and_resumes(reference, tmp_path):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "mpmjax.cli", "run", SCENE, "--out", str(out), "--checkpoint-every", "2", "--quiet"]
+    cmd += [a for o in OVER for a in ("--set", o)]
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
+    t0 = time.time()
+    while not (out / "checkpoint.h5").exists():  # frame 2 is on disk
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.time() - t0 < 120
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 130, err
+    assert f"Resume with: mpmjax run --resume {out}" in err and "Traceback" not in err
+    n = read_result(out / "result.h5")["frames"]["t_s"].shape[0]
+    assert 3 <= n < N_FRAMES + 1  # interrupted after frame 2, before the end
+    assert read_checkpoint(out / "checkpoint.h5")[1] == n - 1
+    assert cli.main(["run", "--quiet", "--resume", str(out)]) == 0
+    _assert_same_result(reference / "result.h5", out / "result.h5")
