@@ -1,0 +1,93 @@
+"""Stress cases (issue 6), coarse version (``mpmjax stress --size ci``): every case must stay
+finite, lose no particle, keep its mass and keep its kinetic energy below what gravity released.
+
+The criteria and their tolerances are defined (and justified) in ``mpmjax._stress``; each is
+checked at every step inside the scan.  The coarse cases run at h = 0.02 m for 1 s (the field
+case at h = 4 m for 40 s; the 100 000-step case shortened to 2 000 steps), about 30 s in all.
+"""
+
+import json
+import math
+
+import pytest
+
+from mpmjax import _stress
+
+# Cases whose volume ratio leaves the bound, recorded and explained in docs/performance.md: with
+# the thesis's kappa = 15 kPa the sound speed sqrt(kappa/rho) = 2.8 m/s is below the speeds a 1 m
+# fall or a 1.2 m slide reach (Mach 0.8 to 3), far outside weak compressibility (Mach < 0.3);
+# the Tait EOS caps tension at -C kappa = -1.3 kPa, so the splash/thinning layer stretches
+# (sum J V0 / sum V0 up to 1.05 on the slope, 1.29 for the drop, measured at this resolution).
+SUPERSONIC = {"slope-30deg", "drop-1m"}
+
+
+@pytest.fixture(scope="module")
+def results():
+    return {r["case"]: r for r in _stress.run_stress("ci")}
+
+
+@pytest.mark.parametrize("name", _stress.CASE_NAMES)
+def test_case_stays_finite_keeps_its_mass_and_loses_nothing(results, name):
+    r = results[name]
+    assert not r["nan"]
+    assert r["n_lost"] == 0
+    assert r["n_active_final"] == r["n_active_initial"] == r["n_particles"]
+    assert r["mass_final_kg"] == r["mass_initial_kg"] > 0  # mass rho V0 is fixed per particle: exact
+    assert 0 < r["J_min"] <= 1 <= r["J_max"] and math.isfinite(r["J_max"])
+
+
+@pytest.mark.parametrize("name", _stress.CASE_NAMES)
+def test_kinetic_energy_never_exceeds_the_energy_gravity_released(results, name):
+    r = results[name]
+    # E_k(t) <= E_k(0) + W_g(t) + 1 % E_avail at every step (tolerance justified in _stress);
+    # measured: the excess never rises above 0 (its value at t = 0) in any coarse case
+    assert r["energy_excess_over_available"] <= _stress.ENERGY_TOL
+    assert 0 < r["max_ke_over_available"] <= 1 + _stress.ENERGY_TOL
+    assert r["available_energy_J"] > 0
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="supersonic for kappa = 15 kPa: see SUPERSONIC"))
+        if n in SUPERSONIC
+        else n
+        for n in _stress.CASE_NAMES
+    ],
+)
+def test_volume_ratio_stays_within_the_tait_bound(results, name):
+    r = results[name]
+    lo, hi = r["volume_ratio_bound"]
+    assert lo <= r["volume_ratio_min"] and r["volume_ratio_max"] <= hi, r["failures"]
+    assert r["passed"], r["failures"]
+
+
+def test_supersonic_cases_fail_only_on_volume_and_are_supersonic(results):
+    for n in SUPERSONIC:
+        r = results[n]
+        assert r["mach_max"] > 0.3
+        assert len(r["failures"]) == 1 and r["failures"][0].startswith("V/V0"), r["failures"]
+
+
+def test_the_100k_case_is_shortened_in_ci_and_the_size_is_checked():
+    ci = _stress.case_config(next(c for c in _stress.CASES if c.name == "steps-100k"), "ci")
+    full = _stress.case_config(next(c for c in _stress.CASES if c.name == "steps-100k"), "full")
+    from mpmjax import build
+
+    assert build(ci).scene.n_steps == 2000
+    assert build(full).scene.n_steps == 100_000
+    with pytest.raises(ValueError, match="--size"):
+        _stress.case_config(_stress.CASES[0], "huge")
+
+
+def test_cli_writes_stress_json_and_exits_2_on_a_bad_case(tmp_path, capsys):
+    from mpmjax.cli import main
+
+    out = tmp_path / "stress.json"
+    assert main(["stress", "--case", "alpha-10", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["all_passed"] and doc["size"] == "ci" and [c["case"] for c in doc["cases"]] == ["alpha-10"]
+    assert "| alpha-10 | PASS |" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        main(["stress", "--case", "nope"])
+    assert e.value.code == 2
