@@ -44,15 +44,16 @@ def synthetic_profiles(scene, overrides, times_s, x_m, *, sigma_m: float, seed: 
 
 
 ROOT = Path(__file__).resolve().parent.parent
-# name: (scene, overrides, times [s], stations, sigma [m], seed)
+# name: (scene, overrides, times [s], stations [m], sigma [m], seed, kernel bandwidth [m])
 DATASETS = {
     "synthetic_twin_small_profiles.csv": (
         str(ROOT / "data" / "twin-small-dambreak.toml"),
-        ["domain.cell_size_m=0.015"],
+        ["domain.cell_size_m=0.01"],
         (0.5, 1.0, 1.5),
         np.linspace(0.0, 0.9, 46),
-        0.003,
+        0.001,
         1,
+        0.04,
     ),
     "synthetic_lab_dambreak_profiles.csv": (
         "dambreak-lab",
@@ -61,6 +62,7 @@ DATASETS = {
         np.linspace(0.0, 1.5, 61),
         0.002,
         2,
+        0.02,
     ),
 }
 
@@ -71,8 +73,8 @@ def main(argv=None) -> int:
         if name not in DATASETS:
             print(f"unknown dataset {name!r}; allowed: {', '.join(DATASETS)}", file=sys.stderr)
             return 2
-        scene, ov, times, x, sigma, seed = DATASETS[name]
-        profs, setup = synthetic_profiles(scene, ov, times, x, sigma_m=sigma, seed=seed)
+        scene, ov, times, x, sigma, seed, bw = DATASETS[name]
+        profs, setup = synthetic_profiles(scene, ov, times, x, sigma_m=sigma, seed=seed, bandwidth_m=bw)
         m = setup.params.material
         mat = ", ".join(f"{k} = {float(getattr(m, k)):g}" for k in type(m)._fields)
         header = (
@@ -80,7 +82,7 @@ def main(argv=None) -> int:
             f"scene {Path(scene).name} with overrides {ov}; cell size {setup.scene.h} m, "
             f"{setup.scene.n_particles} particles, dt {setup.scene.dt:.4g} s.\n"
             f"material ({type(m).__name__}, SI): {mat}.\n"
-            f"h = Gaussian-kernel height profile (bandwidth = one cell) + N(0, sigma_m) noise (seed {seed}), "
+            f"h = Gaussian-kernel height profile (bandwidth {bw} m) + N(0, sigma_m) noise (seed {seed}), "
             "clipped at 0.\ncolumns: x_m [m], h_m [m], t_s [s], sigma_m [m]"
         )
         write_profiles_csv(ROOT / "data" / name, profs, header)
