@@ -79,9 +79,10 @@ def outflow_mask(scene, cfg, x) -> np.ndarray:
     return m
 
 
-def check(scene, cfg, prev, cur) -> tuple[list[dict], np.ndarray]:
-    """Problems in ``cur`` (a State after ``prev``), worst first, and the indices of the
-    particles that left through an open face (outflow) between the two."""
+def check(scene, cfg, prev, cur, consecutive: bool = False) -> tuple[list[dict], np.ndarray]:
+    """Problems in ``cur`` (a State after ``prev``; one step after it if ``consecutive``),
+    worst first, and the indices of the particles that left through an open face (outflow)
+    between the two."""
     act = np.asarray(cur.active)
     was = np.asarray(prev.active)
     x, v = np.asarray(cur.x, float), np.asarray(cur.v, float)
@@ -110,21 +111,23 @@ def check(scene, cfg, prev, cur) -> tuple[list[dict], np.ndarray]:
             )
         )
 
+    # a deactivated particle keeps the position and J it had before the step that removed it
     newly = was & ~act
-    outflow = newly & outflow_mask(scene, cfg, np.asarray(prev.x, float))
+    outflow = newly & outflow_mask(scene, cfg, x)
     lost = newly & ~outflow
     if lost.any():
         i = int(np.flatnonzero(lost)[0])
-        xp, vp = np.asarray(prev.x, float)[i], np.asarray(prev.v, float)[i]
-        jp = float(np.asarray(prev.J)[i])
-        speed = float(np.linalg.norm(vp))
+        jl = float(np.asarray(cur.J)[i])
+        speed = ""
+        if consecutive:  # prev is the state one step before the loss
+            speed = f"|v| = {float(np.linalg.norm(np.asarray(prev.v, float)[i])):.3g} m/s, "
         probs.append(
             dict(
                 kind="lost",
                 particle=i,
-                position_m=xp.tolist(),
+                position_m=x[i].tolist(),
                 message=f"{int(lost.sum())} particle(s) lost (state non-finite, J <= 0, or left the grid through a "
-                f"wall), first particle {i}, last seen at {_fmt_pos(xp)} with |v| = {speed:.3g} m/s, J = {jp:.4g}",
+                f"wall), first particle {i}, last seen at {_fmt_pos(x[i])} with {speed}J = {jl:.4g}",
             )
         )
 
@@ -175,7 +178,7 @@ def locate(scene, params, cfg, start, max_steps: int | None = None):
     st = start
     for k in range(n):
         nxt = one(st, params)
-        probs, _ = check(scene, cfg, st, nxt)
+        probs, _ = check(scene, cfg, st, nxt, consecutive=True)
         if probs:
             return k, st, nxt, probs
         st = nxt
