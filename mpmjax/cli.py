@@ -595,6 +595,11 @@ def main(argv=None) -> int:
     pss = sub.add_parser("stress", help="robustness cases (stiff, viscous, field scale, slope, drop, 100k steps)")
     _stress.add_arguments(pss)
     pss.set_defaults(fn=_stress.cmd_stress)
+    from . import _records
+
+    prec = sub.add_parser("records", help="run the thesis's record scenes; our figures next to the thesis's (table)")
+    _records.add_arguments(prec)
+    prec.set_defaults(fn=_records.cmd_records)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
