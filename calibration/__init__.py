@@ -1,9 +1,41 @@
-"""Calibration of rheological parameters (fitting, sensitivity, uncertainty).
+"""Calibration of rheological parameters (fitting, sensitivity, uncertainty); see docs/calibration.md.
 
-``calibration.observables``: differentiable observables of a run (height profile, smooth
-front, deposited volume); see docs/calibration.md.
+* ``load_profiles`` / ``Profile`` (``calibration.data``): measured flume profiles, CSV or HDF5.
+* ``ParameterSet`` / ``ParamSpec`` (``calibration.params``): which parameters are fitted, bounds, transforms.
+* ``ProfileExperiment``, ``FlowCurveExperiment``, ``joint_loss`` (``calibration.experiments``).
+* ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam, multi-start by ``vmap``.
+* ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability.
+* ``sweep`` (``calibration.sweep``): a parameter grid as one ``vmap`` batch, sharded over devices.
+* ``calibration.observables``: differentiable height profile, smooth front, deposited volume.
 """
 
+from .data import DataError, Profile, load_profiles, write_profiles_csv
+from .experiments import FlowCurveExperiment, ProfileExperiment, joint_loss
+from .fit import FitResult, fit
 from .observables import deposited_volume, gaussian_kernel, height_profile, particle_volume, smooth_front
+from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
+from .sweep import sweep
+from .uncertainty import Uncertainty, gauss_newton
 
-__all__ = ["deposited_volume", "gaussian_kernel", "height_profile", "particle_volume", "smooth_front"]
+__all__ = [
+    "DEFAULT_BOUNDS",
+    "DataError",
+    "FitResult",
+    "FlowCurveExperiment",
+    "ParamSpec",
+    "ParameterSet",
+    "Profile",
+    "ProfileExperiment",
+    "Uncertainty",
+    "deposited_volume",
+    "fit",
+    "gauss_newton",
+    "gaussian_kernel",
+    "height_profile",
+    "joint_loss",
+    "load_profiles",
+    "particle_volume",
+    "smooth_front",
+    "sweep",
+    "write_profiles_csv",
+]

@@ -325,3 +325,52 @@ def test_time_offsets_match_frames():
     with pytest.raises(ValueError, match=r"t_s = 0.5 s is after the end of the scene's run \(t_end = 0.3 s\)"):
         ProfileExperiment(s, [Profile(x, np.ones(10) * 0.01, 0.5)])
     assert math.isfinite(e.bandwidth_m) and e.bandwidth_m == pytest.approx(0.06)
+
+
+# ------------------------------------------------------- identifiability, joint experiments
+def _self_profile_experiment(setup, n_st=31, sigma=0.001):
+    """A final profile made by the model itself (no noise): the Fisher matrix at the truth."""
+    from calibration.experiments import ProfileExperiment
+
+    x = np.linspace(0.0, 0.9, n_st)
+    e0 = ProfileExperiment(setup, [Profile(x, np.ones(n_st) * 0.01, None)], bandwidth_m=0.04)
+    h = np.asarray(e0.model_profiles({})[0])
+    return ProfileExperiment(setup, [Profile(x, h, None, np.full(n_st, sigma))], bandwidth_m=0.04)
+
+
+def test_alpha_and_T_from_a_final_profile_are_flagged():
+    """The issue's example: alpha and T separately from one final profile.  The dam break at
+    h = 0.03 m to 1.5 s constrains mostly their product (structure builds at 1/T and breaks at
+    alpha * shear rate): measured correlation -0.96, weakest combination alpha^-0.73 T^1.  The
+    analysis must warn about the correlation and name that combination."""
+    s = m.build(m.load_scene(TWIN, ["domain.cell_size_m=0.03", "time.t_end_s=1.5", "time.n_frames=3"]))
+    e = _self_profile_experiment(s)
+    u = gauss_newton([e], ParameterSet.from_names(["alpha", "T"], s.params.material), {"alpha": 1.0, "T": 0.5})
+    assert u.corr[0, 1] < -0.9
+    assert any("alpha and T are strongly correlated" in w for w in u.warnings), u.warnings
+    assert any("least determined combination: alpha^" in w for w in u.warnings), u.warnings
+    # the weak direction changes alpha and T in opposite senses (their product is what is known)
+    assert u.weakest["alpha"] * u.weakest["T"] < 0
+
+
+def test_joint_experiments_add_information():
+    """Profiles plus a rheometer flow curve (both with known sigma): the Fisher matrices add
+    exactly, so no standard deviation of the joint fit exceeds either experiment's alone, and
+    the joint loss is the weighted sum of the parts."""
+    from calibration.experiments import joint_loss
+    from mpmjax.rheometer import steady_flow_curve
+
+    s = m.build(m.load_scene(TWIN, SMALL))
+    e = _self_profile_experiment(s)
+    mat = s.params.material
+    g = np.logspace(-1, 2, 12)
+    fc = FlowCurveExperiment(mat, g, np.asarray(steady_flow_curve(mat, jnp.asarray(g))[0]), sigma_ln=0.05, weight=2.0)
+    ps = ParameterSet.from_names(["mu0", "n", "alpha"], mat)
+    th = {"mu0": 4.0, "n": 2.5, "alpha": 1.0}
+    up, uf, uj = (gauss_newton(x, ps, th) for x in ([e], [fc], [e, fc]))
+    np.testing.assert_allclose(uj.fisher, up.fisher + uf.fisher, rtol=1e-10, atol=1e-12 * np.abs(uj.fisher).max())
+    assert np.all(uj.std <= np.minimum(up.std, uf.std) * (1 + 1e-9)), (uj.std, up.std, uf.std)
+    v = {"mu0": 5.0, "n": 2.0}
+    r_fc = np.asarray(fc.residuals(v))
+    parts = float(joint_loss([e], v)) + 2.0 * float(np.mean(r_fc**2))  # weight 2 on the flow curve
+    assert float(joint_loss([e, fc], v)) == pytest.approx(parts, rel=1e-12)
