@@ -31,6 +31,7 @@ import hashlib
 import json
 import math
 import os
+import time
 from pathlib import Path
 
 import h5py
@@ -191,15 +192,47 @@ class FrameWriter:
         return False
 
 
-def read_result(path) -> dict:
-    """Read ``result.h5`` back into numpy arrays: {'attrs': {...}, 'frames': {...}, 'particles': {...}}."""
-    with h5py.File(path, "r") as f:
-        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
-        # a frame is complete once its time is written (t_s is written last)
-        nf = f["frames"]["t_s"].shape[0]
-        frames = {k: f["frames"][k][:nf] for k in f["frames"]}
-        particles = {k: f["particles"][k][()] for k in f["particles"]}
+def _read_open(f) -> dict:
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+    # a frame is complete once its time is written (t_s is written last)
+    nf = f["frames"]["t_s"].shape[0]
+    frames = {k: f["frames"][k][:nf] for k in f["frames"]}
+    particles = {k: f["particles"][k][()] for k in f["particles"]}
     return {"attrs": attrs, "frames": frames, "particles": particles}
+
+
+def _same_frames(a: dict, b: dict) -> bool:
+    n = min(len(a["frames"]["t_s"]), len(b["frames"]["t_s"]))
+    return all(np.array_equal(a["frames"][k][:n], b["frames"][k][:n], equal_nan=k != "active") for k in a["frames"])
+
+
+def read_result(path, live_retries: int = 50) -> dict:
+    """Read ``result.h5`` back into numpy arrays: {'attrs': {...}, 'frames': {...}, 'particles': {...}}.
+
+    Works on the file left by an interrupted or killed run, and on the file of a run that is
+    still going.  The writer then holds the HDF5 file lock, so the file is opened without it;
+    and since the writer's flush is not atomic, one read can catch it half-way (an HDF5 error,
+    or the newest frames read as zeros).  A live file is therefore read twice, and the frames
+    are returned only when both reads agree (up to ``live_retries`` tries 0.05 s apart)."""
+    try:
+        with h5py.File(path, "r") as f:
+            return _read_open(f)
+    except BlockingIOError:
+        pass
+    prev = None
+    for attempt in range(live_retries + 1):
+        try:
+            with h5py.File(path, "r", locking=False) as f:
+                cur = _read_open(f)
+        except (OSError, KeyError):
+            if attempt == live_retries:
+                raise
+            cur = None
+        if cur is not None and prev is not None and _same_frames(prev, cur):
+            return prev
+        prev = cur
+        time.sleep(0.05)
+    raise OSError(f"{path}: a run is writing it and {live_retries + 1} reads did not agree; read it again later")
 
 
 def write_checkpoint(path, state, frame: int, cfg_hash: str, meta: dict):

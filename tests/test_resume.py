@@ -155,3 +155,33 @@ def test_ctrl_c_on_the_command_line_exits_130_and_resumes(reference, tmp_path):
     assert read_checkpoint(out / "checkpoint.h5")[1] == n - 1
     assert cli.main(["run", "--quiet", "--resume", str(out)]) == 0
     _assert_same_result(reference / "result.h5", out / "result.h5")
+
+
+def test_kill_9_leaves_readable_frames_and_resumes(reference, tmp_path):
+    # the file of a running run can be read (the writer holds the HDF5 lock: read without it);
+    # after SIGKILL nothing is closed, yet every flushed frame reads back, and --resume cuts
+    # result.h5 back to the last periodic checkpoint and gives the uninterrupted result
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "mpmjax.cli", "run", SCENE, "--out", str(out), "--checkpoint-every", "2", "--quiet"]
+    cmd += [a for o in OVER for a in ("--set", o)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, JAX_PLATFORMS="cpu"), stderr=subprocess.PIPE, text=True)
+    t0 = time.time()
+    while not (out / "checkpoint.h5").exists():
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.time() - t0 < 120
+        time.sleep(0.01)
+    live = read_result(out / "result.h5")
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    ref = read_result(reference / "result.h5")
+    part = read_result(out / "result.h5")
+    n, n_live = part["frames"]["t_s"].shape[0], live["frames"]["t_s"].shape[0]
+    assert 3 <= n_live <= n < N_FRAMES + 1 and "status" not in part["attrs"] and not part["attrs"]["complete"]
+    for k in ref["frames"]:
+        np.testing.assert_array_equal(part["frames"][k], ref["frames"][k][:n], err_msg=k)
+        np.testing.assert_array_equal(live["frames"][k], ref["frames"][k][:n_live], err_msg=k)
+    k_ckpt = read_checkpoint(out / "checkpoint.h5")[1]
+    assert k_ckpt % 2 == 0 and k_ckpt <= n - 1
+    assert cli.main(["run", "--quiet", "--resume", str(out)]) == 0
+    _assert_same_result(reference / "result.h5", out / "result.h5")
