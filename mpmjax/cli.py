@@ -318,7 +318,8 @@ def run_scene(
         "dt_s": sc.dt,
         "t_end_s": sc.t_end,
     }
-    prog = None if quiet else Progress(sc.n_frames, "run")
+    start = done  # progress and its time estimate count this session's frames
+    prog = None if quiet else Progress(sc.n_frames - start, "run" if not start else f"run (from frame {start})")
     sig = _Signals()
     t_run = time.perf_counter()
     wall0 = acc["wall_s"]
@@ -359,7 +360,7 @@ def run_scene(
                     )
                     acc["lost_reported"] = lost
                 if prog:
-                    prog.update(done, f"t = {float(state.t):7.3f} s, runout {acc['fronts'][-1]:.3f} m,")
+                    prog.update(done - start, f"t = {float(state.t):7.3f} s, runout {acc['fronts'][-1]:.3f} m,")
                 if on_frame is not None:
                     on_frame(done, state)
         except KeyboardInterrupt as e:
