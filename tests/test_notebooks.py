@@ -95,3 +95,31 @@ def test_notebook(path, monkeypatch, tmp_path):
     ns = _run(path, monkeypatch, tmp_path)
     if check is not None:
         check(ns)
+
+
+@pytest.mark.slow
+def test_api_examples(monkeypatch):
+    """docs/api.md: every python block runs, in order, in one namespace (about 2 minutes of CPU:
+    the calibration fit dominates), and its numbers are what the comments say."""
+    import re
+
+    monkeypatch.chdir(ROOT)
+    ns = {}
+    try:
+        for i, src in enumerate(re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "api.md").read_text(), re.S)):
+            exec(compile(src, f"docs/api.md python block {i}", "exec"), ns)
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close("all")
+    assert ns["sc"].n_particles == 100 and int(ns["final"].n_lost) == 0
+    # P2G conserves mass, the kernel profile integrates to the released 0.04 m^2
+    assert float(ns["mass"].sum()) == pytest.approx(1850.0 * 0.04, rel=1e-5)
+    assert float(np.trapezoid(np.asarray(ns["h"]), np.asarray(ns["xs"]))) == pytest.approx(0.04, rel=1e-4)
+    # a more viscous block runs out less (gradient), the lower mu0 runs further (sweep)
+    assert float(ns["jax"].grad(ns["front"])(ns["params"].material.mu0)) < 0
+    assert ns["sw"]["final_runout_m"][0] > ns["sw"]["final_runout_m"][1]
+    # twin fit: mu0 = 4 Pa s recovered within 3 standard deviations; rheometer fit to 1e-3
+    std = float(ns["unc"].std[0])
+    assert 0 < std < 1.0 and abs(ns["result"].params["mu0"] - 4.0) < 3 * std
+    assert float(ns["fitted"].params.mu0) == pytest.approx(4.0, rel=1e-3)
