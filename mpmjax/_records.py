@@ -51,7 +51,7 @@ SCALE_MATERIALS = {
 MATERIAL_LABEL = {"bingham": "Bingham", "coussot-1": "Coussot 1 (n = 2.5)", "coussot-2": "Coussot 2 (n = 1.076)"}
 # thesis §5.1: runout difference to Bingham at 100 m, "over 7.5 % and 35 %, respectively"
 THESIS_RATIO_100M = {"coussot-1": 1.075, "coussot-2": 1.35}
-CHANNEL_LENGTHS = 15.0  # channel length / block size
+CHANNEL_LENGTHS = 40.0  # channel length / block size (15 L: every flow from 1 m on reached the end wall)
 DOMAIN_HEIGHTS = 1.25  # domain height / block size
 KAPPA_RHO_G_L = 25.0  # bulk modulus / (rho g L): the same compression and Mach number at every scale
 SCALE_SIZES = {
@@ -101,9 +101,9 @@ CI = {
     "dambreak-lab": ["domain.cell_size_m=0.04", "time.t_end_s=1.0", "time.n_frames=4"],
     # 3000 m x 24 m; 12 m cells; first 40 s of 400 s
     "field-dambreak-2d": ["domain.cell_size_m=12.0", "time.t_end_s=40.0", "time.n_frames=4"],
-    "field-dambreak-3d": ["domain.cell_size_m=12.0", "time.t_end_s=20.0", "time.n_frames=2"],
-    # 150 x 50 x 2 m; 1 m cells; 10 s of flow + 2 s of rest
-    "field-pipe-3d": ["domain.cell_size_m=1.0", "time.t_end_s=12.0", "time.n_frames=4", "inflow.t_stop_s=10.0"],
+    "field-dambreak-3d": ["domain.cell_size_m=12.0", "time.t_end_s=10.0", "time.n_frames=2"],
+    # 150 x 50 x 2 m; 1 m cells; 6 s of flow + 2 s of rest
+    "field-pipe-3d": ["domain.cell_size_m=1.0", "time.t_end_s=8.0", "time.n_frames=4", "inflow.t_stop_s=6.0"],
     # 10 m flume; 8 cm cells; 30 s pour
     "flume-deposition": ["domain.cell_size_m=0.08", "time.t_end_s=30.0", "time.n_frames=6", "inflow.t_stop_s=30.0"],
     # 2 m flume; 4 cm cells; 2 s pour of 1/5.5 of the volume + 0.4 s
@@ -169,11 +169,11 @@ def centreline_beach_slope(result_h5: Path, band_m: float) -> float:
     return float(beach_slope(xc, top, bed=lo[-1], min_depth_m=spacing))
 
 
-def _run(scene: str, out: Path, overrides: list[str], log) -> dict:
+def _run(scene: str, out: Path, overrides: list[str], log, progress: bool = False) -> dict:
     from .cli import run_scene
 
     log(f"  {scene} {' '.join(overrides)}".rstrip())
-    s = run_scene(scene, out, overrides, quiet=True)
+    s = run_scene(scene, out, overrides, quiet=not progress)
     log(
         f"    -> runout {s['final_runout_m']:.4g} m at {s['t_end_s']:g} s, wall {s['wall_s']:.1f} s "
         f"(+ {s['compile_s']:.1f} s compile), {s['n_particles']} particles, {s['n_steps']} steps"
@@ -195,14 +195,15 @@ def _run_info(s: dict) -> dict:
     }
 
 
-def record(name: str, size: str, out: Path, log=lambda *a: None) -> tuple[list[dict], dict]:
-    """Run record ``name`` at ``size`` ('ci' or 'full') under ``out/name``; returns (rows, runs)."""
+def record(name: str, size: str, out: Path, log=lambda *a: None, progress: bool = False) -> tuple[list[dict], dict]:
+    """Run record ``name`` at ``size`` ('ci' or 'full') under ``out/name``; returns (rows, runs).
+    ``progress``: show each run's progress bar (stderr)."""
     from ._config import load_scene
 
     if name == "scale-study":
-        return _scale_study(size, out / name, log)
+        return _scale_study(size, out / name, log, progress)
     over = CI[name] if size == "ci" else []
-    s = _run(name, out / name, over, log)
+    s = _run(name, out / name, over, log, progress)
     runs = {name: _run_info(s)}
     w = s["wall_s"]
     if name == "dambreak-lab":
@@ -326,13 +327,13 @@ def record(name: str, size: str, out: Path, log=lambda *a: None) -> tuple[list[d
     return rows, runs
 
 
-def _scale_study(size: str, out: Path, log) -> tuple[list[dict], dict]:
+def _scale_study(size: str, out: Path, log, progress: bool = False) -> tuple[list[dict], dict]:
     g = 9.81
     runs, res = {}, {}
     for L in SCALES_M:
         for mat in SCALE_MATERIALS:
             key = f"{L:g}m-{mat}"
-            s = _run("scale-study", out / key, scale_overrides(L, mat, size), log)
+            s = _run("scale-study", out / key, scale_overrides(L, mat, size), log, progress)
             info = _run_info(s)
             reached_wall = s["final_runout_m"] >= CHANNEL_LENGTHS * L - s["cell_size_m"]
             t_rest, q = _rest(s)
@@ -380,7 +381,7 @@ def _scale_study(size: str, out: Path, log) -> tuple[list[dict], dict]:
     return rows, runs
 
 
-def _fmt(v, unit=""):
+def _fmt(v):
     if v is None:
         return "—"
     a = abs(v)
@@ -403,7 +404,7 @@ def markdown(doc: dict) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in doc["rows"]:
-        ours = f"{r['qualifier']}{_fmt(r['ours'])} {r['unit']}".strip()
+        ours = f"{r['qualifier']}{_fmt(r['ours'])}" + ("" if r["unit"] == "-" else f" {r['unit']}")
         diff = "—" if r["difference_pct"] is None else f"{r['difference_pct']:+.1f} %"
         wall = "—" if r["wall_s"] is None else f"{r['wall_s']:.1f}"
         lines.append(
@@ -431,8 +432,10 @@ def markdown(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_records(names, size: str, out: Path, log=None) -> dict:
-    """Run the records ``names`` (all when empty) and write records.json / records.md to ``out``."""
+def run_records(names, size: str, out: Path, log=None, progress: bool = False) -> dict:
+    """Run the records ``names`` (all when empty) and write records.json / records.md to ``out``
+    after each record. ``log``: a print-like function for one line per run; ``progress``: also
+    show each run's progress bar."""
     from ._io import atomic_write_text
 
     if size not in SCALE_SIZES:
@@ -448,7 +451,7 @@ def run_records(names, size: str, out: Path, log=None) -> dict:
     t0 = time.perf_counter()
     for i, name in enumerate(names):
         log(f"[{i + 1}/{len(names)}] {name} ({size})")
-        rows, runs = record(name, size, out, log)
+        rows, runs = record(name, size, out, log, progress)
         doc["rows"] += rows
         doc["runs"].update(runs)
         doc["wall_total_s"] = time.perf_counter() - t0
@@ -479,7 +482,9 @@ def cmd_records(args) -> int:
     if bad:
         return _fail(f"record {bad[0]!r} is invalid: allowed {', '.join(RECORD_NAMES)}")
     try:
-        doc = run_records(args.names, args.size, Path(args.out), log=lambda *a: print(*a, file=sys.stderr))
+        doc = run_records(
+            args.names, args.size, Path(args.out), log=lambda *a: print(*a, file=sys.stderr), progress=True
+        )
     except (SceneError, ValueError) as e:
         return _fail(str(e))
     print(markdown(doc))
