@@ -5,6 +5,8 @@ active particle at its stored position, colour values equal to the stored field,
 equal to ``mpmjax._metrics.surface_profile``, the runout curve equal to summary.json's
 ``runout_m``, one GIF image per saved frame, and labelled axes with units."""
 
+import json
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -156,3 +158,57 @@ def test_animate_writes_one_image_per_frame(run, tmp_path):
     assert not list(tmp_path.glob("**/*.tmp.gif"))
     with pytest.raises(ValueError, match="expected a .gif"):
         plotting.animate(res, tmp_path / "run.mp4")
+
+
+def _result_3d():
+    """A hand-made 3D result (2 frames, 8 particles of a 0.2 m cube on 0.1 m spacing), as read_result gives it."""
+    cfg = {
+        "name": "cube-3d",
+        "domain.dim": 3,
+        "domain.lo_m": [0.0, 0.0, 0.0],
+        "domain.hi_m": [1.0, 0.4, 0.4],
+        "domain.cell_size_m": 0.2,
+        "numerics.ppc": 2,
+        "bodies": [{"type": "box", "lo_m": [0.1, 0.0, 0.0], "hi_m": [0.3, 0.2, 0.2]}],
+        "inflow.point_m": None,
+        "output.runout_axis": 0,
+        "output.runout_origin_m": None,
+    }
+    g = np.arange(2) * 0.1 + 0.05
+    x0 = np.stack(np.meshgrid(g + 0.1, g, g, indexing="ij"), -1).reshape(-1, 3)
+    x1 = x0 + np.array([0.25, 0.0, -0.01]) * (x0[:, 2:] < 0.1)  # the bottom layer slides 0.25 m
+    v = np.zeros((2, 8, 3))
+    v[1, :, 2] = -0.1
+    frames = {
+        "t_s": np.array([0.0, 1.0]),
+        "x_m": np.stack([x0, x1]).astype("f4"),
+        "v_m_s": v.astype("f4"),
+        "J": np.ones((2, 8), "f4"),
+        "mu_pa_s": np.full((2, 8), 4.0, "f4"),
+        "active": np.ones((2, 8), "u1"),
+    }
+    attrs = {"scene_config_json": json.dumps(cfg), "dim": 3}
+    return {"attrs": attrs, "frames": frames, "particles": {"vol0_m3": np.full(8, 1e-3)}}
+
+
+def test_3d_views_and_runout():
+    res = _result_3d()
+    x1 = res["frames"]["x_m"][1]
+    side = plotting.particles(res, 1, "vz")
+    np.testing.assert_array_equal(np.asarray(side.collections[0].get_offsets()), x1[:, [0, 2]])
+    assert (side.get_xlabel(), side.get_ylabel()) == ("x [m]", "z [m]")
+    assert _colorbar_label(side) == "vertical velocity v_z [m/s]"
+    np.testing.assert_allclose(np.asarray(side.collections[0].get_array()), -0.1, rtol=1e-6)
+    plan = plotting.particles(res, 1, "displacement", view="plan")
+    np.testing.assert_array_equal(np.asarray(plan.collections[0].get_offsets()), x1[:, :2])
+    assert (plan.get_xlabel(), plan.get_ylabel()) == ("x [m]", "y [m]")
+    # the bottom layer moved by |(0.25, 0, -0.01)| m, the top layer not at all
+    d = np.sort(np.asarray(plan.collections[0].get_array()))
+    np.testing.assert_allclose(d, [0, 0, 0, 0] + [np.hypot(0.25, 0.01)] * 4, atol=1e-6)
+    # runout from the back of the body (x = 0.1 m): the last particle at 0.25 (+0.25) plus half of 0.1 m
+    t, front = plotting.runout(res)
+    np.testing.assert_allclose(front, [0.25 + 0.05 - 0.1, 0.5 + 0.05 - 0.1], atol=1e-6)
+    with pytest.raises(ValueError, match="for 2D results; this one is 3D"):
+        plotting.profiles(res, method="kernel")
+    with pytest.raises(ValueError, match="allowed: 'side', 'plan'"):
+        plotting.particles(res, 0, "mu", view="top")
