@@ -1,8 +1,10 @@
 """Plots of a finished (or interrupted) run read back from ``result.h5``.
 
 Every function takes ``result``: the dict returned by ``mpmjax._io.read_result``, or a path
-to a ``result.h5`` file (or to the run folder holding it).  Matplotlib only; nothing here needs a display (it works
-with the Agg backend, which matplotlib picks by itself on a headless machine).
+to a ``result.h5`` file (or to the run folder holding it).  Matplotlib only; nothing here
+needs a display (it works with the Agg backend, which matplotlib picks by itself on a
+headless machine).  Functions that draw return the matplotlib Axes; pass ``ax=`` to draw
+into a figure of your own.
 
 * ``particles(result, frame, field)``: side view (3D: side or plan view) of one frame,
   coloured by a stored field, with a colour bar in the field's unit.
@@ -319,8 +321,11 @@ def profiles(result, times=None, data=None, ax=None, *, method: str = "surface",
     for i, k in enumerate(ks):
         xc, hc = profile_at(res, k, method=method, bandwidth_m=bandwidth_m)
         ax.plot(xc, hc, "-", color=colors[i % len(colors)], label=f"model t = {t[k]:.3g} s")
+    colour_of_frame = {k: colors[i % len(colors)] for i, k in reversed(list(enumerate(ks)))}
     for j, (lab, tm, xd, hd, sd) in enumerate(meas):
-        c = colors[ks.index(_pick_times(res, [tm])[0]) % len(colors)] if tm is not None else colors[j % len(colors)]
+        # a measurement takes the colour of the model line at its time (final profile: the last frame)
+        kd = _pick_times(res, [tm])[0] if tm is not None else len(t) - 1
+        c = colour_of_frame.get(kd, colors[(len(ks) + j) % len(colors)])
         if sd is not None:
             ax.errorbar(xd, hd, yerr=sd, fmt="o", ms=3, color=c, label=lab)
         else:
