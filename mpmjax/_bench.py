@@ -10,10 +10,12 @@ Configurations:
   cell per axis) at about 1e3, 1e4 and 1e5 particles (1e6 with ``--large``), 2D and 3D,
   float32 and float64.  The cell size is 1/k with k = n^(1/dim), so the particle count is k^dim
   and the grid has (k + 7)^dim nodes.
-* ``gradient``: ``jax.grad`` of the final centroid x of the default scene with respect to the
-  Coussot mu0, through ``simulate`` (checkpointed scan, 50 steps per checkpointed chunk), against
-  the forward run of the same function, at a few step counts; with XLA's compiled memory
-  estimate (``Compiled.memory_analysis()``: temporary buffers, not the process peak).
+* ``gradient``: reverse mode (``jax.value_and_grad``) of the final centroid x of the default scene
+  with respect to the Coussot mu0, through ``simulate`` (checkpointed scan, 50 steps per
+  checkpointed chunk), against the forward run of the same function, at a few step counts; also
+  forward mode (``jax.jvp``, the cheaper choice for one parameter; its tangent must equal the
+  gradient).  With XLA's compiled memory estimate (``Compiled.memory_analysis()``: temporary
+  buffers, not the process peak).
 * ``batch``: 16 runs of the default scene with 16 values of mu0 as one ``vmap`` batch, against
   the same 16 runs one after another (one compiled function, reused).
 
@@ -166,9 +168,14 @@ def bench_gradient(step_counts, dtype="float32", chunk=50, reps=3, coarse=False,
         t0 = time.perf_counter()
         grd = jax.jit(jax.value_and_grad(loss)).lower(mu0).compile()
         c_grd = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jvp = jax.jit(lambda m, loss=loss: jax.jvp(loss, (m,), (jnp.ones_like(m),))).lower(mu0).compile()
+        c_jvp = time.perf_counter() - t0
         t_f = _timed(fwd, mu0, reps=reps)
         t_g = _timed(grd, mu0, reps=reps)
+        t_j = _timed(jvp, mu0, reps=reps)
         val, g = grd(mu0)
+        g_fwd = jvp(mu0)[1]
         r = {
             "steps": steps,
             "steps_per_checkpoint": spf,
@@ -178,14 +185,20 @@ def bench_gradient(step_counts, dtype="float32", chunk=50, reps=3, coarse=False,
             "gradient_over_forward": t_g / t_f,
             "compile_forward_s": c_fwd,
             "compile_gradient_s": c_grd,
+            "jvp_s": t_j,
+            "jvp_over_forward": t_j / t_f,
+            "compile_jvp_s": c_jvp,
             "centroid_x_m": float(val),
             "d_centroid_d_mu0_m_per_pa_s": float(g),
+            "d_centroid_d_mu0_jvp_m_per_pa_s": float(g_fwd),
+            "jvp_memory": _mem(jvp),
             "forward_memory": _mem(fwd),
             "gradient_memory": _mem(grd),
         }
         rows.append(r)
         log(
-            f"gradient {steps:5d} steps: forward {t_f:.3f} s, value_and_grad {t_g:.3f} s, ratio {t_g / t_f:.2f}; "
+            f"gradient {steps:5d} steps: forward {t_f:.3f} s, value_and_grad {t_g:.3f} s, ratio {t_g / t_f:.2f}, "
+            f"jvp {t_j:.3f} s, ratio {t_j / t_f:.2f}; "
             f"XLA temp memory {_fmt_bytes(r['forward_memory']['temp_bytes'])} / "
             f"{_fmt_bytes(r['gradient_memory']['temp_bytes'])}"
         )

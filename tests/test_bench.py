@@ -58,9 +58,15 @@ def test_gradient_rows(doc):
     for r in doc["gradient"]:
         for k in ("forward_s", "gradient_s", "gradient_over_forward", "compile_forward_s", "compile_gradient_s"):
             assert _pos(r[k]), (k, r[k])
+        for k in ("jvp_s", "jvp_over_forward", "compile_jvp_s"):
+            assert _pos(r[k]), (k, r[k])
         assert r["gradient_over_forward"] == pytest.approx(r["gradient_s"] / r["forward_s"])
         assert math.isfinite(r["d_centroid_d_mu0_m_per_pa_s"]) and math.isfinite(r["centroid_x_m"])
-        for mem in (r["forward_memory"], r["gradient_memory"]):
+        # forward and reverse mode give the same derivative (float32, 10 steps: round-off only)
+        assert r["d_centroid_d_mu0_jvp_m_per_pa_s"] == pytest.approx(
+            r["d_centroid_d_mu0_m_per_pa_s"], rel=1e-3, abs=1e-9
+        )
+        for mem in (r["forward_memory"], r["gradient_memory"], r["jvp_memory"]):
             assert set(mem) == {"temp_bytes", "argument_bytes", "output_bytes"}
             assert mem["temp_bytes"] is None or mem["temp_bytes"] >= 0
 
