@@ -474,7 +474,8 @@ def add_arguments(p):
 
 def cmd_records(args) -> int:
     from ._config import SceneError
-    from .cli import _fail
+    from ._health import RunFailure
+    from .cli import FAILED, _fail
 
     if args.size not in SCALE_SIZES:
         return _fail(f"--size {args.size!r} is invalid: allowed ci, full")
@@ -487,5 +488,8 @@ def cmd_records(args) -> int:
         )
     except (SceneError, ValueError) as e:
         return _fail(str(e))
+    except RunFailure as e:
+        print(f"\nmpmjax: {e}\nthe records measured before it are in {Path(args.out) / 'records.md'}", file=sys.stderr)
+        return FAILED
     print(markdown(doc))
     return 0
