@@ -8,17 +8,22 @@ t = 0.5, 1.0 and 1.5 s (138 stations).  The fit runs the same scene at h = 0.02 
 
 What the tolerances rest on (measured, docs/calibration.md "Twin experiments"): at the fit
 resolution the model cannot reproduce the finer run exactly.  With the true parameters the
-h = 0.02 m model leaves a loss (mean squared normalised residual) of 9.85, almost all of it
-resolution error (pure noise would give 1.0); the best the coarse model can do is about 6.8,
-at mu0 ~ 3.4 Pa s (-15 %) with lambda0 ~ 1.3.  So:
+h = 0.02 m model leaves a loss (mean squared normalised residual) of 10.27, almost all of it
+resolution error (the h = 0.01 m model at the truth leaves 0.75: the noise, partly clipped at
+h = 0); the best the coarse model can do is 6.79,
+at mu0 = 3.36 Pa s (-16 %) with lambda0 = 1.28 (converged CLI fit).  So:
 
-* the loss must fall by >= 95 % (the issue's criterion; the measured floor is 96 % below
-  the factor-2 start, so this also checks that the fit reaches the floor, not a plateau);
-* mu0 must come back within 25 % (the measured 15 % resolution bias plus 10 points for a
+* the loss must fall by >= 95 % (the issue's criterion; from the factor-2 start above,
+  mu0 = 8, lambda0 = 3, loss 164.2, the floor is 95.9 % lower, so this also checks that
+  the fit reaches the floor; from the factor-2 start below, mu0 = 2, lambda0 = 0.75, the loss
+  is only 25.4 and the floor is 73 % lower, so there the slow test checks the same floor);
+* mu0 must come back within 25 % (the measured 16 % resolution bias plus 10 points for a
   fit stopped after a few iterations along the mu0-lambda0 valley);
 * lambda0 trades off against mu0 along that valley (both make the initial material
-  stiffer), so it is not asserted on its own: the Gauss-Newton analysis must report their
-  strong correlation instead.
+  stiffer) and is biased too (1.28 against 1.5 at the converged fit), so it is not asserted
+  on its own: the Gauss-Newton analysis must report it as the weakly constrained
+  parameter, negatively correlated with mu0.  (With sigma = 1 mm taken as known, the
+  Gauss-Newton std of mu0 is 1 %: far below the 16 % resolution bias, which is not noise.)
 """
 
 from pathlib import Path
@@ -68,19 +73,30 @@ def test_twin_fit_mu0_lambda0_from_a_factor_two_guess(twin):
     assert abs(r.params["mu0"] / TRUTH["mu0"] - 1.0) < 0.25, r.params
     # the loss cannot go below what pure noise leaves (1.0 per residual), and the coarse
     # model's resolution error keeps it well above that
-    assert 1.0 < r.loss_final < 9.85
+    assert 0.75 < r.loss_final < 10.27
     u = gauss_newton([exp], ps, r.params)
     i, j = u.names.index("mu0"), u.names.index("lambda0")
-    assert u.corr[i, j] < -0.5, u.corr  # more mu0 is traded for less initial structure
     assert np.all(np.isfinite(u.std)) and np.all(u.std > 0)
+    # more mu0 is traded for less initial structure (measured r = -0.55 at the converged fit)
+    assert u.corr[i, j] < 0, u.corr
+    # lambda0 is the weakly constrained one (measured relative std 7.2 % against 1.0 % for mu0)
+    assert u.rel_std[j] > 3 * u.rel_std[i], u.rel_std
+    assert abs(u.weakest.get("lambda0", 0.0)) == pytest.approx(1.0)
 
 
 @pytest.mark.slow
-def test_twin_fit_from_below_reaches_the_same_floor(twin):
-    """The same fit from a factor of 2 below (mu0 = 2, lambda0 = 0.75): more fluid than the
-    truth instead of stiffer."""
+def test_twin_fits_from_above_and_below_reach_the_same_floor(twin):
+    """From a factor of 2 below (mu0 = 2, lambda0 = 0.75: more fluid than the truth) and from
+    a factor of 2 above, the fits end at the same resolution floor and the same biased mu0.
+    Tolerances: 3 % in loss and 5 % in mu0, the spread of the iterates once the loss has
+    flattened (the last 5 iterations of the converged CLI fit span 6.787-6.804 in loss and
+    3.358-3.404 in mu0)."""
     setup, exp = twin
-    ps = ParameterSet.from_names(["mu0", "lambda0"], setup.params.material, init={"mu0": 2.0, "lambda0": 0.75})
-    r = fit([exp], ps, method="lbfgs", max_iter=20, rtol=1e-3, patience=3, progress=False)
-    assert 1.0 - r.loss_final / r.loss_initial >= 0.95, (r.loss_initial, r.loss_final, r.params)
-    assert abs(r.params["mu0"] / TRUTH["mu0"] - 1.0) < 0.25, r.params
+    res = []
+    for init in ({"mu0": 8.0, "lambda0": 3.0}, {"mu0": 2.0, "lambda0": 0.75}):
+        ps = ParameterSet.from_names(["mu0", "lambda0"], setup.params.material, init=init)
+        res.append(fit([exp], ps, method="lbfgs", max_iter=20, rtol=1e-3, patience=3, progress=False))
+    a, b = res
+    assert b.loss_final == pytest.approx(a.loss_final, rel=0.03), (a.loss_final, b.loss_final)
+    assert b.params["mu0"] == pytest.approx(a.params["mu0"], rel=0.05), (a.params, b.params)
+    assert abs(b.params["mu0"] / TRUTH["mu0"] - 1.0) < 0.25
