@@ -321,17 +321,21 @@ def make_step(scene: Scene):
         t_mask = xn[:, -1] <= terrain.height(xn[:, :-1]) + 1e-6 * scene.h
         t_nrm = terrain.normal(xn[:, :-1])
 
+    m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
+
     def step(state: State, params: Params) -> State:
         dtp = state.x.dtype
         state = release(state, params)
         mass, mom, force, st = p2g(state, params)
-        # A node holding less than 1e-9 of a full cell's mass counts as empty.  GIMP/B-spline tails
-        # give edge nodes masses down to ~1e-20 kg; there d(1/m)/dm = -1/m^2 overflows in float32
-        # and the reverse pass turns inf * 0 into NaN.  Such a node's velocity reaches a particle
-        # with a weight of the same 1e-9 order.  Measured: dambreak-lab and bingham-dambreak give
-        # bit-identical positions after 2 s with floors 0, 1e-12, 1e-9 and 1e-6; the bingham-funnel
-        # pour's runout moved by -1.5 % (0.934 -> 0.920 m), a scene that amplifies tiny changes.
-        has = mass > EMPTY_NODE_FRACTION * params.material.rho * scene.h**dim
+        # float32 only: a node holding less than EMPTY_NODE_FRACTION (1e-9) of a full cell's mass
+        # counts as empty.  GIMP/B-spline tails give edge nodes masses down to ~1e-20 kg; there
+        # d(1/m)/dm = -1/m^2 overflows float32 and the reverse pass turns inf * 0 into NaN.  Such
+        # a node's velocity reaches a particle with a weight of the same 1e-9 order: dambreak-lab
+        # and bingham-dambreak give bit-identical float32 positions after 2 s with floors 0,
+        # 1e-12, 1e-9 and 1e-6.  The floor does drop the momentum of those nodes (5e-9 relative
+        # on the frictionless-incline test), so float64, where 1/m^2 cannot overflow, keeps the
+        # exact floor 0 and its exact conservation.
+        has = mass > m_empty * params.material.rho
         inv_m = jnp.where(has, 1.0 / jnp.where(has, mass, 1.0), 0.0)
         v_old = mom * inv_m[:, None]
         g = jnp.asarray(params.gravity, dtp)[None, :]
