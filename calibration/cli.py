@@ -73,6 +73,12 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the extra starts")
     p.add_argument(
+        "--gradient",
+        default="auto",
+        choices=("auto", "forward", "reverse"),
+        help="gradient mode: forward (one tangent per parameter), reverse, or auto (forward for <= 8 parameters)",
+    )
+    p.add_argument(
         "--sigma-m", type=float, help="profile standard deviation [m] where the data give none (default 5%% of max h)"
     )
     p.add_argument("--bandwidth-m", type=float, help="kernel bandwidth of the model profile [m] (default: cell size)")
@@ -197,6 +203,7 @@ def calibrate(args) -> dict:
         n_starts=args.starts,
         seed=args.seed,
         progress=progress,
+        gradient=args.gradient,
     )
     unc = gauss_newton(exps, pset, res.params)
     wall = time.perf_counter() - t0
@@ -219,6 +226,7 @@ def calibrate(args) -> dict:
         "loss_definition": "sum over experiments of weight * mean(((model - data) / sigma)^2), dimensionless",
         "loss_history": [float(v) for v in res.history.min(axis=1)],
         "method": args.method,
+        "gradient": res.gradient,
         "starts": res.starts,
         "finals": res.finals,
         "final_losses": [float(v) for v in res.final_losses],

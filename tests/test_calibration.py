@@ -374,3 +374,24 @@ def test_joint_experiments_add_information():
     r_fc = np.asarray(fc.residuals(v))
     parts = float(joint_loss([e], v)) + 2.0 * float(np.mean(r_fc**2))  # weight 2 on the flow curve
     assert float(joint_loss([e, fc], v)) == pytest.approx(parts, rel=1e-12)
+
+
+def test_forward_mode_gradient_equals_reverse_mode():
+    """fit's default gradient for few parameters is forward mode (vmapped jvp behind a
+    custom_vjp, 2.6x cheaper than a reverse pass for 2 parameters on the twin scene); it must
+    give the reverse-mode value and gradient to rounding, also under vmap (multi-start)."""
+    from calibration.experiments import ProfileExperiment
+    from calibration.fit import loss_function
+
+    s = m.build(m.load_scene(TWIN, SMALL))
+    x = np.linspace(0.0, 0.9, 12)
+    e = ProfileExperiment(s, [Profile(x, np.full(12, 0.02), 0.3, np.full(12, 0.002))], bandwidth_m=0.06)
+    ps = ParameterSet.from_names(["mu0", "n", "lambda0"], s.params.material, init={"mu0": 6.0})
+    z = jnp.stack([ps.z0(jnp.float64), ps.z0(jnp.float64) + 0.3])
+    rev = jax.vmap(jax.value_and_grad(loss_function([e], ps, "reverse")))(z)
+    fwd = jax.vmap(jax.value_and_grad(loss_function([e], ps, "forward")))(z)
+    np.testing.assert_allclose(fwd[0], rev[0], rtol=1e-12)
+    np.testing.assert_allclose(fwd[1], rev[1], rtol=1e-9, atol=1e-12 * float(jnp.abs(rev[1]).max()))
+    assert float(jnp.abs(rev[1]).min()) > 0
+    with pytest.raises(ValueError, match="gradient = 'sideways' is invalid"):
+        loss_function([e], ps, "sideways")
