@@ -668,6 +668,8 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
         node[parts[-1]] = val
     ter = raw.get("terrain")
     if isinstance(ter, dict) and isinstance(ter.get("csv"), str) and ter["csv"]:
+        if "\x00" in ter["csv"]:
+            raise SceneError(f"terrain.csv = {ter['csv']!r}: a file path cannot contain a NUL character")
         ter["csv"] = str((path.parent / ter["csv"]).resolve()) if not Path(ter["csv"]).is_absolute() else ter["csv"]
     return validate(raw)
 

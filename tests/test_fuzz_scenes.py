@@ -14,6 +14,7 @@ import math
 import tomllib
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
@@ -384,6 +385,10 @@ def test_known_crashers():
     assert "material.viscosity_pa_s" in msg and "time.t_end_s" in msg, msg
     assert check("not a table", {""}) == "invalid"
     assert check([1, 2], {""}) == "invalid"
+    # load_scene resolves terrain.csv against the scene's folder: a NUL in it raised ValueError
+    # from pathlib (found by test_fuzz_overrides with key='terrain.csv', text='\x00')
+    with pytest.raises(mpmjax.SceneError, match="terrain.csv"):
+        mpmjax.load_scene("dambreak-lab", {"terrain.csv": "\x00"})
 
 
 def _build_error(raw):
