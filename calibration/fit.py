@@ -106,13 +106,10 @@ def forward_mode_gradient(f):
     def g(z):
         return f(z)
 
-    def g_fwd(z):
-        return value_and_grad(z)
-
     def g_bwd(grad, ct):
         return (ct * grad,)
 
-    g.defvjp(g_fwd, g_bwd)
+    g.defvjp(value_and_grad, g_bwd)
     return g
 
 
