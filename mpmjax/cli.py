@@ -601,6 +601,11 @@ def main(argv=None) -> int:
     prec = sub.add_parser("records", help="run the thesis's record scenes; our figures next to the thesis's (table)")
     _records.add_arguments(prec)
     prec.set_defaults(fn=_records.cmd_records)
+    from . import _pareto
+
+    ppa = sub.add_parser("pareto", help="error against run time of the lab dam break numerics (Pareto front)")
+    _pareto.add_arguments(ppa)
+    ppa.set_defaults(fn=_pareto.cmd_pareto)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
