@@ -23,11 +23,30 @@ Definitions (also in ``docs/scenarios.md``):
     default window is the wetted extent (bins with h - bed > ``min_depth_m``) with
     ``trim`` of its length removed at each end (the toe and the inflow mound).  The
     slope is negative for a surface falling in +x.  nan with fewer than 3 points.
+
+Plan-view metrics of 3D runs (``plan_view_summary``; x is the flow axis, y lateral, z normal
+to the base; bins of one cell size h on the run's x-y grid):
+
+``thickness_map``
+    Volume of the active particles (J V0) in a bin's column / bin area [m].
+``lobe_width``
+    Widest transverse section of the deposit [m]: in each row of bins at fixed x, the distance
+    between the outer edges of the outermost bins thicker than a threshold (summary.json: half a
+    particle spacing, i.e. half a particle layer); mirrored about a symmetry plane (half models).
+``plan_view_mean``
+    Plan-view map: bin mean of log10 mu (or of |v|) over the active particles; nan in bins with
+    fewer than ``PLAN_MIN_COUNT`` particles.
+``channel_sections``
+    Per transverse section: lateral viscosity contrast (max - min of the bin-mean log10 mu
+    [decades]), speed coefficient of variation and max/min ratio; a channel is a bin at least
+    ``CHANNEL_CONTRAST_DECADES`` below the stiffest bin on each side of it and at least
+    ``CHANNEL_SPEED_RATIO`` times faster than both (and >= ``CHANNEL_MIN_SPEED_M_S``).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -175,3 +194,376 @@ def beach_slope(x_grid, h, *, window=None, bed=0.0, min_depth_m: float = 0.0, tr
         return math.nan
     slope, _ = np.polyfit(xg[sel], hh[sel], 1)
     return float(slope)
+
+
+# --- plan-view (x-y) metrics of 3D runs ------------------------------------------------------
+
+
+def _plan_index(x, active, x_edges, y_edges):
+    """Bin indices (i along x, j along y) of the active particles inside the x-y grid, and the mask
+    of the particles used."""
+    x = np.asarray(x, float)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"x: expected (n, 3) positions [m] of a 3D run; got shape {x.shape}")
+    xe, ye = np.asarray(x_edges, float), np.asarray(y_edges, float)
+    for name, e in (("x_edges", xe), ("y_edges", ye)):
+        if e.ndim != 1 or e.size < 2 or not np.all(np.diff(e) > 0):
+            raise ValueError(f"{name}: expected increasing bin edges [m] (at least 2); got {e!r}")
+    a = np.asarray(active, bool) & np.all(np.isfinite(x), axis=1)
+    i = np.searchsorted(xe, x[:, 0], side="right") - 1
+    j = np.searchsorted(ye, x[:, 1], side="right") - 1
+    use = a & (i >= 0) & (i < xe.size - 1) & (j >= 0) & (j < ye.size - 1)
+    return i, j, use, (xe.size - 1, ye.size - 1)
+
+
+def plan_view_mean(x, values, active, x_edges, y_edges, *, min_count: int = 1):
+    """Plan-view (x-y) bin means of a per-particle quantity over the active particles.
+
+    Args:
+      x: positions [m], (n, 3).
+      values: (n,) values to average (e.g. log10 of the viscosity, or the speed).
+      active: bool (n,).
+      x_edges, y_edges: increasing bin edges [m] along x and y.
+      min_count: bins holding fewer active particles are nan.
+    Returns (mean (nx, ny), count (nx, ny)); the mean is nan where count < ``min_count``.
+    Particles outside the edges, inactive or with a non-finite value are left out.
+    """
+    v = np.asarray(values, float)
+    i, j, use, shape = _plan_index(x, active, x_edges, y_edges)
+    use = use & np.isfinite(v)
+    s = np.zeros(shape)
+    c = np.zeros(shape, dtype=np.int64)
+    np.add.at(s, (i[use], j[use]), v[use])
+    np.add.at(c, (i[use], j[use]), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(c >= max(int(min_count), 1), s / np.maximum(c, 1), np.nan)
+    return mean, c
+
+
+def thickness_map(x, volume, active, x_edges, y_edges):
+    """Deposit thickness [m] per plan-view bin: the volume of the active particles in the bin's
+    column divided by the bin's area (0 where empty).
+
+    With the current particle volume ``J * vol0`` this is the depth of material averaged over the
+    bin: a bin fully covered by one layer of particles of spacing s (ppc^2 particles of s^3
+    each on an h x h bin, s = h / ppc) has a thickness of s.
+    """
+    vol = np.asarray(volume, float) * np.ones(np.shape(active))
+    i, j, use, shape = _plan_index(x, active, x_edges, y_edges)
+    use = use & np.isfinite(vol)
+    t = np.zeros(shape)
+    np.add.at(t, (i[use], j[use]), vol[use])
+    area = np.outer(np.diff(np.asarray(x_edges, float)), np.diff(np.asarray(y_edges, float)))
+    return t / area
+
+
+def lobe_width(thickness_m, y_edges, min_thickness_m: float, *, symmetry_y_m=None):
+    """Lateral extent [m] of the deposit perpendicular to the flow axis (x).
+
+    A plan-view bin is covered when its thickness exceeds ``min_thickness_m``.  The width of a
+    transverse section (one row of bins at fixed x) is the distance between the outer edges of
+    its outermost covered bins (gaps between them count as width).  With a symmetry plane at
+    ``y = symmetry_y_m`` (a half model) the width is that of the mirrored deposit:
+    2 * max |y_edge - symmetry_y_m| over the covered bins' outer edges.
+
+    Args:
+      thickness_m: (nx, ny) thickness map [m] (``thickness_map``).
+      y_edges: (ny + 1,) bin edges along y [m].
+      min_thickness_m: threshold [m], >= 0.
+      symmetry_y_m: y of a symmetry plane of the model [m], or None.
+    Returns (width [m] of the widest section (0 if nothing is covered), index of that section
+    (-1 if none), per-section widths (nx,) [m]).
+    """
+    if not min_thickness_m >= 0:
+        raise ValueError(f"min_thickness_m={min_thickness_m}; allowed: >= 0 [m]")
+    th = np.asarray(thickness_m, float)
+    ye = np.asarray(y_edges, float)
+    if th.ndim != 2 or th.shape[1] != ye.size - 1:
+        raise ValueError(f"thickness_m has shape {th.shape}; expected (nx, {ye.size - 1}) for {ye.size} y_edges")
+    cov = th > min_thickness_m
+    any_cov = cov.any(axis=1)
+    first = np.argmax(cov, axis=1)
+    last = ye.size - 2 - np.argmax(cov[:, ::-1], axis=1)
+    lo, hi = ye[first], ye[last + 1]
+    if symmetry_y_m is None:
+        w = hi - lo
+    else:
+        w = 2.0 * np.maximum(np.abs(lo - symmetry_y_m), np.abs(hi - symmetry_y_m))
+    w = np.where(any_cov, w, 0.0)
+    if not any_cov.any():
+        return 0.0, -1, w
+    k = int(np.argmax(w))
+    return float(w[k]), k, w
+
+
+class ChannelSections(NamedTuple):
+    """Per transverse section (row of plan-view bins at fixed x) of one frame; nan/False/-1 where
+    the section has fewer than ``min_bins`` occupied bins."""
+
+    viscosity_contrast_decades: np.ndarray  # (nx,) max - min of the bin-mean log10 mu across the section
+    speed_cv: np.ndarray  # (nx,) std / mean of the bin-mean speed across the section [-]
+    speed_ratio: np.ndarray  # (nx,) max / min of the bin-mean speed across the section [-] (inf if min is 0)
+    channel: np.ndarray  # (nx,) bool: the section holds a channel (definition in ``channel_sections``)
+    channel_bin: np.ndarray  # (nx,) y-bin index of the channel (-1: none)
+
+
+def channel_sections(
+    log10_mu,
+    speed,
+    *,
+    contrast_decades: float = 1.0,
+    speed_ratio: float = 2.0,
+    min_speed_m_s: float = 0.01,
+    min_bins: int = 3,
+    mirror: str | None = None,
+) -> ChannelSections:
+    """Lateral contrast of viscosity and speed across the transverse sections of a lobe, and
+    self-forming channels.
+
+    Each row ``i`` of the plan-view maps is a transverse section (fixed x, bins along y); only
+    bins where both maps are finite (occupied) count.  Per section:
+
+    * viscosity contrast [decades] = max - min over the section of the bin-mean log10 mu
+      (1 decade = a factor 10 between the stiffest and the most fluid bin);
+    * speed coefficient of variation = std / mean of the bin-mean speed across the section, and
+      the speed ratio max / min;
+    * a **channel**: a bin c whose viscosity is at least ``contrast_decades`` below the stiffest
+      bin on *each* side of it (material at least 10^contrast_decades times stiffer flanks it on
+      both sides: levees), that moves at least ``speed_ratio`` times faster than both of those
+      stiffest flank bins and at least ``min_speed_m_s``.  Of several candidates the most fluid
+      (lowest log10 mu) is reported.
+
+    ``mirror``: "low" or "high" if the model has a symmetry plane at the low or high y end
+    of the maps (a half model): the section is mirrored about it first, so that a fluid lane on
+    the plane is flanked by its mirror image.
+
+    Args:
+      log10_mu: (nx, ny) bin means of log10 viscosity [log10 Pa s]; nan where empty.
+      speed: (nx, ny) bin means of |v| [m/s]; nan where empty.
+    Returns ``ChannelSections``.
+    """
+    if not contrast_decades > 0:
+        raise ValueError(f"contrast_decades={contrast_decades}; allowed: > 0")
+    if not speed_ratio >= 1:
+        raise ValueError(f"speed_ratio={speed_ratio}; allowed: >= 1")
+    if not min_speed_m_s >= 0:
+        raise ValueError(f"min_speed_m_s={min_speed_m_s}; allowed: >= 0 [m/s]")
+    if mirror not in (None, "low", "high"):
+        raise ValueError(f"mirror={mirror!r}; allowed: None, 'low', 'high'")
+    lm, sp = np.asarray(log10_mu, float), np.asarray(speed, float)
+    if lm.shape != sp.shape or lm.ndim != 2:
+        raise ValueError(f"log10_mu and speed need the same (nx, ny) shape; got {lm.shape} and {sp.shape}")
+    nx, ny = lm.shape
+    contrast = np.full(nx, np.nan)
+    cv = np.full(nx, np.nan)
+    ratio = np.full(nx, np.nan)
+    chan = np.zeros(nx, bool)
+    cbin = np.full(nx, -1)
+    for i in range(nx):
+        ok = np.isfinite(lm[i]) & np.isfinite(sp[i])
+        idx = np.nonzero(ok)[0]
+        if idx.size < min_bins:
+            continue
+        m, s = lm[i, idx], sp[i, idx]
+        contrast[i] = m.max() - m.min()
+        mean = s.mean()
+        cv[i] = s.std() / mean if mean > 0 else np.nan
+        ratio[i] = s.max() / s.min() if s.min() > 0 else np.inf
+        if mirror == "low":
+            m, s, idx = np.r_[m[::-1], m], np.r_[s[::-1], s], np.r_[idx[::-1], idx]
+        elif mirror == "high":
+            m, s, idx = np.r_[m, m[::-1]], np.r_[s, s[::-1]], np.r_[idx, idx[::-1]]
+        best = None
+        for c in range(1, m.size - 1):
+            kl = int(np.argmax(m[:c]))
+            kr = c + 1 + int(np.argmax(m[c + 1 :]))
+            if min(m[kl], m[kr]) - m[c] < contrast_decades:
+                continue
+            if s[c] < min_speed_m_s or s[c] < speed_ratio * max(s[kl], s[kr]):
+                continue
+            if best is None or m[c] < m[best]:
+                best = c
+        if best is not None:
+            chan[i] = True
+            cbin[i] = int(idx[best])
+    return ChannelSections(contrast, cv, ratio, chan, cbin)
+
+
+def plan_view_series(x, v, mu, active, volume, x_edges, y_edges, *, min_count: int = 2) -> dict:
+    """Plan-view maps of every saved frame of a 3D run.
+
+    Args:
+      x: positions [m], (F, n, 3); v: velocities [m/s], (F, n, 3); mu: viscosity [Pa s], (F, n);
+      active: bool (F, n); volume: current particle volumes J * vol0 [m^3], (F, n) or (n,).
+      x_edges, y_edges: bin edges [m].
+      min_count: the bin means (viscosity, speed) are nan in bins with fewer active particles.
+    Returns a dict of (F, nx, ny) arrays: ``log10_mu`` (bin mean of log10 mu [log10 Pa s]),
+    ``speed_m_s`` (bin mean of |v|), ``thickness_m`` (``thickness_map``), ``count``.
+    """
+    x, v, mu = np.asarray(x), np.asarray(v), np.asarray(mu, float)
+    act = np.asarray(active, bool)
+    vol = np.asarray(volume, float) * np.ones(act.shape)
+    out = {"log10_mu": [], "speed_m_s": [], "thickness_m": [], "count": []}
+    for k in range(act.shape[0]):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lmu = np.where(mu[k] > 0, np.log10(np.where(mu[k] > 0, mu[k], 1.0)), np.nan)
+        m, c = plan_view_mean(x[k], lmu, act[k], x_edges, y_edges, min_count=min_count)
+        s, _ = plan_view_mean(x[k], np.linalg.norm(v[k], axis=-1), act[k], x_edges, y_edges, min_count=min_count)
+        out["log10_mu"].append(m)
+        out["speed_m_s"].append(s)
+        out["thickness_m"].append(thickness_map(x[k], vol[k], act[k], x_edges, y_edges))
+        out["count"].append(c)
+    return {k: np.stack(a) for k, a in out.items()}
+
+
+def write_plan_view(path, t_s, x_edges, y_edges, maps: dict, attrs: dict):
+    """Write plan-view maps (``plan_view_series``) to an HDF5 file (through a temporary file
+    and a rename): ``/t_s`` (F,), ``/x_edges_m`` (nx+1,), ``/y_edges_m`` (ny+1,) and one
+    (F, nx, ny) dataset per map (float32, gzip; ``count`` int32), ``attrs`` as JSON in the
+    root attribute ``attrs_json`` and the unit of each dataset in ``units_json``."""
+    import json
+    import os
+    from pathlib import Path
+
+    import h5py
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    units = {"t_s": "s", "x_edges_m": "m", "y_edges_m": "m", "log10_mu": "log10(Pa s)", "speed_m_s": "m/s"}
+    units.update(thickness_m="m", count="particles")
+    with h5py.File(tmp, "w") as f:
+        f["t_s"] = np.asarray(t_s, float)
+        f["x_edges_m"] = np.asarray(x_edges, float)
+        f["y_edges_m"] = np.asarray(y_edges, float)
+        for name, arr in maps.items():
+            dt = "i4" if name == "count" else "f4"
+            f.create_dataset(name, data=np.asarray(arr).astype(dt), compression="gzip", compression_opts=4)
+        f.attrs["attrs_json"] = json.dumps(attrs)
+        f.attrs["units_json"] = json.dumps(units)
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def read_plan_view(path) -> dict:
+    """The maps written by ``write_plan_view`` as numpy arrays (``attrs`` parsed)."""
+    import json
+    from pathlib import Path
+
+    import h5py
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / "plan_view.h5"
+    with h5py.File(p, "r") as f:
+        d = {k: f[k][()] for k in f}
+        d["attrs"] = json.loads(f.attrs["attrs_json"])
+    return d
+
+
+# thresholds of the summary.json lobe and channel metrics (docs/output.md)
+LOBE_THRESHOLD_LAYERS = 0.5  # a bin is covered above this many particle layers (x particle spacing)
+CHANNEL_CONTRAST_DECADES = 1.0
+CHANNEL_SPEED_RATIO = 2.0
+CHANNEL_MIN_SPEED_M_S = 0.01
+PLAN_MIN_COUNT = 2
+
+
+def plan_view_summary(result, path=None) -> dict:
+    """Lobe width, plan-view viscosity map and channel metric of a 3D run for summary.json.
+
+    ``result``: the dict of ``mpmjax._io.read_result`` (the scene is read from its
+    ``scene_config_json``).  The plan-view grid is the run's grid in x and y (bins of one
+    cell size h).  With ``path``, every frame's maps are written there (``write_plan_view``).
+    Returns a JSON-ready dict (definitions in docs/output.md).
+    """
+    import json
+
+    cfg = json.loads(result["attrs"]["scene_config_json"])
+    if int(cfg["domain.dim"]) != 3:
+        raise ValueError(f"plan_view_summary: a 3D run is needed; this one is {cfg['domain.dim']}D")
+    h = float(cfg["domain.cell_size_m"])
+    spacing = h / int(cfg["numerics.ppc"])
+    lo, hi = cfg["domain.lo_m"], cfg["domain.hi_m"]
+    xe = lo[0] + h * np.arange(int(round((hi[0] - lo[0]) / h)) + 1)
+    ye = lo[1] + h * np.arange(int(round((hi[1] - lo[1]) / h)) + 1)
+    sym_y, mirror = None, None
+    if cfg["boundary.y_lo"] == "symmetry":
+        sym_y, mirror = float(lo[1]), "low"
+    elif cfg["boundary.y_hi"] == "symmetry":
+        sym_y, mirror = float(hi[1]), "high"
+    fr = result["frames"]
+    vol = np.asarray(fr["J"], float) * np.asarray(result["particles"]["vol0_m3"], float)
+    maps = plan_view_series(fr["x_m"], fr["v_m_s"], fr["mu_pa_s"], fr["active"], vol, xe, ye, min_count=PLAN_MIN_COUNT)
+    t = np.asarray(fr["t_s"], float)
+    thr = LOBE_THRESHOLD_LAYERS * spacing
+    xc = 0.5 * (xe[1:] + xe[:-1])
+
+    def fin(a, nd=6):
+        a = float(a)
+        return round(a, nd) if math.isfinite(a) else None
+
+    widths, w_x, contrast, cv, n_chan, chan_x = [], [], [], [], [], []
+    for k in range(t.size):
+        w, i, _ = lobe_width(maps["thickness_m"][k], ye, thr, symmetry_y_m=sym_y)
+        widths.append(fin(w))
+        w_x.append(fin(xc[i]) if i >= 0 else None)
+        cs = channel_sections(
+            maps["log10_mu"][k],
+            maps["speed_m_s"][k],
+            contrast_decades=CHANNEL_CONTRAST_DECADES,
+            speed_ratio=CHANNEL_SPEED_RATIO,
+            min_speed_m_s=CHANNEL_MIN_SPEED_M_S,
+            mirror=mirror,
+        )
+        have = np.isfinite(cs.viscosity_contrast_decades)
+        contrast.append(fin(np.max(cs.viscosity_contrast_decades[have])) if have.any() else None)
+        cvk = cs.speed_cv[np.isfinite(cs.speed_cv)]
+        cv.append(fin(cvk.max()) if cvk.size else None)
+        n_chan.append(int(cs.channel.sum()))
+        chan_x.append([fin(xc[cs.channel].min()), fin(xc[cs.channel].max())] if cs.channel.any() else None)
+    first = next((float(t[k]) for k in range(t.size) if n_chan[k] > 0), None)
+    lm, th = maps["log10_mu"][-1], maps["thickness_m"][-1]
+    cov = th > thr
+    good = cov & np.isfinite(lm)
+    area = h * h
+    attrs = {
+        "bin_m": h,
+        "min_count": PLAN_MIN_COUNT,
+        "lobe_threshold_m": thr,
+        "symmetry_y_m": sym_y,
+        "scene": cfg["name"],
+    }
+    if path is not None:
+        write_plan_view(path, t, xe, ye, maps, attrs)
+    return {
+        "lobe_width_m": widths[-1],
+        "lobe_width_m_per_frame": widths,
+        "lobe_width_section_x_m": w_x[-1],
+        "lobe_width_threshold_m": thr,
+        "lobe_width_mirrored": sym_y is not None,
+        "plan_view": {
+            "file": None if path is None else str(getattr(path, "name", path)),
+            "bin_m": h,
+            "x_edges_m": [float(xe[0]), float(xe[-1]), int(xe.size - 1)],
+            "y_edges_m": [float(ye[0]), float(ye[-1]), int(ye.size - 1)],
+            "min_count": PLAN_MIN_COUNT,
+            "final_covered_area_m2": float(cov.sum() * area),
+            "final_max_thickness_m": fin(th.max()),
+            "final_log10_mu_min": fin(lm[good].min()) if good.any() else None,
+            "final_log10_mu_max": fin(lm[good].max()) if good.any() else None,
+            "final_log10_mu_mean": fin(lm[good].mean()) if good.any() else None,
+        },
+        "channels": {
+            "detected": first is not None,
+            "first_time_s": first,
+            "viscosity_contrast_decades_max": contrast,
+            "speed_cv_max": cv,
+            "n_channel_sections": n_chan,
+            "channel_x_range_m": chan_x,
+            "contrast_decades": CHANNEL_CONTRAST_DECADES,
+            "speed_ratio": CHANNEL_SPEED_RATIO,
+            "min_speed_m_s": CHANNEL_MIN_SPEED_M_S,
+            "mirrored": mirror is not None,
+        },
+    }
