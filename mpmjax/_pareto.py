@@ -390,6 +390,9 @@ def run_pareto(size: str = "ci", out: Path | str = "docs", fresh: bool = False, 
         doc["markdown"] = markdown(doc["rows"])
         atomic_write_text(jpath, json.dumps(_jsonable(doc), indent=1))
         log(row_line(rec) + (" (reused)" if rec.get("reused") else ""))
+    log("\nfinal table (front: R runout, P profile)\n" + HEADER)
+    for r in doc["rows"]:
+        log(row_line(r))
     doc["meta"]["finished_utc"] = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
     atomic_write_text(jpath, json.dumps(_jsonable(doc), indent=1))
     plot(doc["rows"], ppath, f"{SCENE} (BASE), t = {t_end:g} s: error vs CPU time, reference {reference[0]}")
