@@ -31,8 +31,8 @@ to the base; bins of one cell size h on the run's x-y grid):
     Volume of the active particles (J V0) in a bin's column / bin area [m].
 ``lobe_width``
     Widest transverse section of the deposit [m]: in each row of bins at fixed x, the distance
-    between the outer edges of the outermost bins thicker than a threshold (summary.json: half a
-    particle spacing, i.e. half a particle layer); mirrored about a symmetry plane (half models).
+    between the outer edges of the outermost bins thicker than a threshold (summary.json: 10 % of
+    the frame's thickest bin); mirrored about a symmetry plane (half models).
 ``plan_view_mean``
     Plan-view map: bin mean of log10 mu (or of |v|) over the active particles; nan in bins with
     fewer than ``PLAN_MIN_COUNT`` particles.
@@ -462,7 +462,7 @@ def read_plan_view(path) -> dict:
 
 
 # thresholds of the summary.json lobe and channel metrics (docs/output.md)
-LOBE_THRESHOLD_LAYERS = 0.5  # a bin is covered above this many particle layers (x particle spacing)
+LOBE_THRESHOLD_FRACTION = 0.1  # a bin is covered when thicker than this fraction of the frame's thickest bin
 CHANNEL_CONTRAST_DECADES = 1.0
 CHANNEL_SPEED_RATIO = 2.0
 CHANNEL_MIN_SPEED_M_S = 0.01
@@ -483,7 +483,6 @@ def plan_view_summary(result, path=None) -> dict:
     if int(cfg["domain.dim"]) != 3:
         raise ValueError(f"plan_view_summary: a 3D run is needed; this one is {cfg['domain.dim']}D")
     h = float(cfg["domain.cell_size_m"])
-    spacing = h / int(cfg["numerics.ppc"])
     lo, hi = cfg["domain.lo_m"], cfg["domain.hi_m"]
     xe = lo[0] + h * np.arange(int(round((hi[0] - lo[0]) / h)) + 1)
     ye = lo[1] + h * np.arange(int(round((hi[1] - lo[1]) / h)) + 1)
@@ -496,7 +495,6 @@ def plan_view_summary(result, path=None) -> dict:
     vol = np.asarray(fr["J"], float) * np.asarray(result["particles"]["vol0_m3"], float)
     maps = plan_view_series(fr["x_m"], fr["v_m_s"], fr["mu_pa_s"], fr["active"], vol, xe, ye, min_count=PLAN_MIN_COUNT)
     t = np.asarray(fr["t_s"], float)
-    thr = LOBE_THRESHOLD_LAYERS * spacing
     xc = 0.5 * (xe[1:] + xe[:-1])
 
     def fin(a, nd=6):
@@ -504,7 +502,9 @@ def plan_view_summary(result, path=None) -> dict:
         return round(a, nd) if math.isfinite(a) else None
 
     widths, w_x, contrast, cv, n_chan, chan_x = [], [], [], [], [], []
+    thr = 0.0
     for k in range(t.size):
+        thr = LOBE_THRESHOLD_FRACTION * float(maps["thickness_m"][k].max())
         w, i, _ = lobe_width(maps["thickness_m"][k], ye, thr, symmetry_y_m=sym_y)
         widths.append(fin(w))
         w_x.append(fin(xc[i]) if i >= 0 else None)
@@ -525,12 +525,12 @@ def plan_view_summary(result, path=None) -> dict:
     first = next((float(t[k]) for k in range(t.size) if n_chan[k] > 0), None)
     lm, th = maps["log10_mu"][-1], maps["thickness_m"][-1]
     cov = th > thr
-    good = cov & np.isfinite(lm)
+    good = np.isfinite(lm)
     area = h * h
     attrs = {
         "bin_m": h,
         "min_count": PLAN_MIN_COUNT,
-        "lobe_threshold_m": thr,
+        "lobe_threshold_fraction": LOBE_THRESHOLD_FRACTION,
         "symmetry_y_m": sym_y,
         "scene": cfg["name"],
     }
@@ -540,7 +540,8 @@ def plan_view_summary(result, path=None) -> dict:
         "lobe_width_m": widths[-1],
         "lobe_width_m_per_frame": widths,
         "lobe_width_section_x_m": w_x[-1],
-        "lobe_width_threshold_m": thr,
+        "lobe_width_threshold_m": fin(thr),
+        "lobe_width_threshold_fraction": LOBE_THRESHOLD_FRACTION,
         "lobe_width_mirrored": sym_y is not None,
         "plan_view": {
             "file": None if path is None else str(getattr(path, "name", path)),

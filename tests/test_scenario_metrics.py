@@ -152,13 +152,13 @@ def _synthetic_result(cfg, frames_x, frames_v, frames_mu):
 
 
 def test_plan_view_summary_lobe_and_channel_of_a_synthetic_pipe_lobe(tmp_path):
-    """A 6 m wide, 1 m thick lobe in the field-pipe-3d domain (h = 1 m, ppc 2): at rest and
-    uniform in frame 0; in frame 1 a 1 m wide lane on the axis (|y| < 0.5 m) at 1 Pa s and
-    1 m/s between banks at 1000 Pa s and 0.05 m/s."""
+    """A 6 m wide, 2 m thick lobe in the field-pipe-3d domain (h = 1 m, ppc 2) and one stray
+    particle 5 m off the axis: at rest and uniform in frame 0; in frame 1 a 1 m wide lane on the
+    axis (|y| < 0.5 m) at 1 Pa s and 1 m/s between banks at 1000 Pa s and 0.05 m/s."""
     from mpmjax import load_scene
 
     cfg = load_scene("field-pipe-3d", ["domain.cell_size_m=1.0"])
-    x = _lattice(2.0, 12.0, -3.0, 3.0, 0.0, 1.0, 0.5)
+    x = np.concatenate([_lattice(2.0, 12.0, -3.0, 3.0, 0.0, 2.0, 0.5), [[5.25, 5.25, 0.25]]])
     lane = np.abs(x[:, 1]) < 0.5
     v0 = np.zeros_like(x)
     v1 = np.zeros_like(x)
@@ -167,12 +167,13 @@ def test_plan_view_summary_lobe_and_channel_of_a_synthetic_pipe_lobe(tmp_path):
     mu1 = np.where(lane, 1.0, 1000.0)
     res = _synthetic_result(cfg, [x, x], [v0, v1], [mu0, mu1])
     s = M.plan_view_summary(res, tmp_path / "plan_view.h5")
-    # thickness 1 m > threshold 0.25 m (half a 0.5 m layer) over y in -3..3
-    assert s["lobe_width_threshold_m"] == 0.25 and not s["lobe_width_mirrored"]
+    # uniform 2 m thickness over y in -3..3; threshold 10 % of the thickest bin = 0.2 m; the
+    # stray particle's bin (0.125 m^3 on 1 m^2: 0.125 m) is below it and does not widen the lobe
+    assert s["lobe_width_threshold_m"] == pytest.approx(0.2) and not s["lobe_width_mirrored"]
     assert s["lobe_width_m_per_frame"] == [6.0, 6.0] and s["lobe_width_m"] == 6.0
     pv = s["plan_view"]
     assert pv["bin_m"] == 1.0 and pv["x_edges_m"] == [0.0, 150.0, 150] and pv["y_edges_m"] == [-25.0, 25.0, 50]
-    assert pv["final_covered_area_m2"] == 60.0 and pv["final_max_thickness_m"] == pytest.approx(1.0)
+    assert pv["final_covered_area_m2"] == 60.0 and pv["final_max_thickness_m"] == pytest.approx(2.0)
     # bins y in [-1, 0) and [0, 1) each hold half lane, half bank: mean log10 mu = 1.5
     assert pv["final_log10_mu_min"] == pytest.approx(1.5) and pv["final_log10_mu_max"] == pytest.approx(3.0)
     ch = s["channels"]
@@ -182,8 +183,9 @@ def test_plan_view_summary_lobe_and_channel_of_a_synthetic_pipe_lobe(tmp_path):
     # maps on disk
     d = M.read_plan_view(tmp_path)
     assert d["log10_mu"].shape == (2, 150, 50) and d["count"][1].sum() == len(x)
-    np.testing.assert_allclose(d["thickness_m"][1].sum(), 60.0, rtol=1e-6)  # volume 60 m^3 over 1 m^2 bins
-    assert d["attrs"]["lobe_threshold_m"] == 0.25
+    np.testing.assert_allclose(d["thickness_m"][1].sum(), 120.125, rtol=1e-6)  # volume [m^3] over 1 m^2 bins
+    assert d["count"][1][5, 30] == 1 and np.isnan(d["log10_mu"][1][5, 30])  # one particle < min_count 2
+    assert d["attrs"]["lobe_threshold_fraction"] == 0.1
 
 
 def test_plan_view_summary_half_model_mirrors_width():
