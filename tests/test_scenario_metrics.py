@@ -198,3 +198,35 @@ def test_plan_view_summary_half_model_mirrors_width():
     s = M.plan_view_summary(res)
     assert s["lobe_width_mirrored"] and s["lobe_width_m"] == 120.0
     assert s["plan_view"]["file"] is None and not s["channels"]["detected"]
+
+
+def test_3d_pictures_and_capped_animation_of_a_synthetic_run(tmp_path):
+    """plan_view.png / sections.png of a synthetic two-frame 3D result, the plan map showing the
+    stored bin means, and a GIF capped at 2 of 5 frames (first and last)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from PIL import Image
+
+    from mpmjax import load_scene, plotting
+
+    cfg = load_scene("field-pipe-3d", ["domain.cell_size_m=1.0"])
+    x = _lattice(2.0, 8.0, -2.0, 2.0, 0.0, 1.0, 0.5)
+    v = np.zeros_like(x)
+    mu = np.where(np.abs(x[:, 1]) < 0.5, 1.0, 100.0)
+    res = _synthetic_result(cfg, [x] * 5, [v] * 5, [mu] * 5)
+    s = M.plan_view_summary(res, tmp_path / "plan_view.h5")
+    paths = plotting.plot_3d_overview(res, tmp_path, s, tmp_path)
+    assert [p.name for p in paths] == ["plan_view.png", "sections.png"] and all(p.stat().st_size > 1000 for p in paths)
+    ax = plotting.plan_map(tmp_path / "plan_view.h5", -1, "log10_mu")
+    shown = np.ma.filled(ax.collections[0].get_array(), np.nan).reshape(50, 150)  # (ny, nx): the map transposed
+    np.testing.assert_allclose(shown[23:27, 2:8], np.repeat([[2.0], [1.0], [1.0], [2.0]], 6, axis=1), rtol=1e-6)
+    ax = plotting.section(res, -1, "mu", along="y", at_m=5.0, half_width_m=0.3)
+    assert len(ax.collections[0].get_offsets()) == 2 * 8 * 2  # x-rows 4.75 and 5.25 (of |x - 5| <= 0.3), 8 across, 2 up
+    calls = []
+    gif = plotting.animate(
+        res, tmp_path / "a.gif", view="plan", max_frames=2, dpi=30, progress=lambda i, _: calls.append(i)
+    )
+    assert Image.open(gif).n_frames == 2 and calls == [0, 1]
+    with pytest.raises(ValueError, match="max_frames"):
+        plotting.animate(res, tmp_path / "b.gif", max_frames=0)
