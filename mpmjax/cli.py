@@ -103,6 +103,28 @@ def _scenario_metrics(setup, state, times, kinetic) -> dict:
     }
 
 
+ANIMATION_MAX_FRAMES = 30  # images in animation.gif (evenly spaced over the saved frames)
+ANIMATION_DPI = 60  # animation.gif resolution (an 8 x 3.2 in figure: 480 x 192 pixels)
+
+
+def _write_animation(res, out: Path, dim: int, quiet: bool) -> Path:
+    """animation.gif of a finished run: particles coloured by viscosity (log scale), side view
+    in 2D, plan view in 3D; at most ANIMATION_MAX_FRAMES images; progress on stderr."""
+    from .plotting import animate
+
+    n = min(int(res["frames"]["t_s"].shape[0]), ANIMATION_MAX_FRAMES)
+    prog = None if quiet else Progress(n, "animation")
+    return animate(
+        res,
+        out / "animation.gif",
+        "mu",
+        view="plan" if dim == 3 else "side",
+        dpi=ANIMATION_DPI,
+        max_frames=ANIMATION_MAX_FRAMES,
+        progress=None if prog is None else (lambda i, _n: prog.update(min(i + 1, n))),
+    )
+
+
 CHECKPOINT_EVERY = 10  # frames between checkpoints (default of --checkpoint-every)
 FAILED = 3  # exit status of a run stopped by a failed health check (mpmjax._health)
 
@@ -195,8 +217,11 @@ def run_scene(
     checkpoint_every: int = CHECKPOINT_EVERY,
     resume: bool = False,
     on_frame=None,
+    animate: bool = False,
 ) -> dict:
-    """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``.
+    """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``
+    (3D scenes also plan_view.h5, plan_view.png and sections.png; with ``animate=True``
+    animation.gif: ``mpmjax run`` does that by default, the Python default is False).
 
     Every ``checkpoint_every`` frames (0: never) the full state is written to
     ``out/checkpoint.h5`` (atomically), and again when the run is interrupted.  With
@@ -455,10 +480,29 @@ def run_scene(
         "jax_backend": jax.default_backend(),
         "complete": True,
     }
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     res = read_result(out / "result.h5")
+    written = ["result.h5", "result.xdmf", "summary.json", "result.png"]
+    if sc.dim == 3:
+        # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
+        summary.update(_metrics.plan_view_summary(res, out / "plan_view.h5"))
+        written.insert(3, "plan_view.h5")
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     plot_result(out / "result.png", res["frames"], summary, cfg["name"])
-    log(f"wrote {out / 'result.h5'}, {out / 'result.xdmf'}, {out / 'summary.json'}, {out / 'result.png'}")
+    if sc.dim == 3:
+        from .plotting import plot_3d_overview
+
+        plot_3d_overview(res, out / "plan_view.h5", summary, out)
+        written += ["plan_view.png", "sections.png"]
+    if animate:
+        _write_animation(res, out, sc.dim, quiet)
+        written.append("animation.gif")
+    log(f"wrote {', '.join(str(out / f) for f in written)}")
+    if sc.dim == 3:
+        ch = summary["channels"]
+        log(
+            f"lobe width {summary['lobe_width_m']} m (thickness > {summary['lobe_width_threshold_m']:g} m); "
+            f"channels: {'yes, from t = ' + format(ch['first_time_s'], 'g') + ' s' if ch['detected'] else 'no'}"
+        )
     log(
         f"final runout {summary['final_runout_m']:.3f} m at t = {sc.t_end:g} s; wall {wall:.1f} s "
         f"({summary['particle_steps_per_s']:.3g} particle-steps/s); lost particles: {summary['n_lost']}"
@@ -502,6 +546,7 @@ def cmd_run(args) -> int:
             quiet=args.quiet,
             checkpoint_every=args.checkpoint_every,
             resume=bool(args.resume),
+            animate=not args.no_animation,
         )
     except SceneError as e:
         return _fail(str(e))
@@ -576,6 +621,11 @@ def main(argv=None) -> int:
         "--resume",
         metavar="DIR",
         help="continue the interrupted run in DIR from DIR/checkpoint.h5 (same scene and --set, or none)",
+    )
+    pr.add_argument(
+        "--no-animation",
+        action="store_true",
+        help=f"do not write OUT/animation.gif (by default a GIF of at most {ANIMATION_MAX_FRAMES} frames)",
     )
     pr.set_defaults(fn=cmd_run)
     try:

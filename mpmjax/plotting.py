@@ -437,18 +437,22 @@ def animate(
     t = res["frames"]["t_s"]
     name = _geometry(res)["name"]
 
+    # one scatter artist, updated in place per image (cheaper than redrawing the axes)
+    sc = ax.scatter(np.zeros(0), np.zeros(0), c=np.zeros(0), s=3, cmap="viridis", norm=norm, lw=0)
+    ax.set_xlim(lo_a - pad_a, hi_a + pad_a)
+    ax.set_ylim(lo_b - pad_b, hi_b + pad_b)
+    ax.set_xlabel(xl)
+    ax.set_ylabel(yl)
+    title = ax.set_title("", fontsize=9)
+
     def draw(i):
-        ax.clear()
         k = ks[i]
         act = act_all[i]
         x = res["frames"]["x_m"][k][act]
-        ax.scatter(x[:, a], x[:, b], c=field_values(res, k, field)[act], s=3, cmap="viridis", norm=norm, lw=0)
-        ax.set_xlim(lo_a - pad_a, hi_a + pad_a)
-        ax.set_ylim(lo_b - pad_b, hi_b + pad_b)
-        ax.set_xlabel(xl)
-        ax.set_ylabel(yl)
-        ax.set_title(f"{name}: t = {t[k]:.3g} s", fontsize=9)
-        return ax.collections
+        sc.set_offsets(np.stack([x[:, a], x[:, b]], axis=-1))
+        sc.set_array(field_values(res, k, field)[act])
+        title.set_text(f"{name}: t = {t[k]:.3g} s")
+        return (sc, title)
 
     from matplotlib.cm import ScalarMappable
 
