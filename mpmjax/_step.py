@@ -393,7 +393,10 @@ def make_step(scene: Scene):
         gate = state.gate
         if scene.gate is not None:
             gn = jnp.asarray(scene.gate.normal, dtp)
-            gate = gate | ((x - jnp.asarray(scene.gate.point, dtp)[None, :]) @ gn > 0.0)
+            # only active particles pass the gate: an inactive one (a parked pool particle, a lost one)
+            # keeps its state untouched, so a run that steps only a prefix of the buffer holding every
+            # active particle (``_simulate.make_prefix_advance``) carries the rest exactly as this step would
+            gate = gate | (state.active & ((x - jnp.asarray(scene.gate.point, dtp)[None, :]) @ gn > 0.0))
         mu, internal = rheo.viscosity(params.material, shear, state.internal, dt, gate)
         tau = deviatoric_update(state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update)
 
