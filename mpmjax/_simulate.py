@@ -9,14 +9,28 @@ There is no ``while_loop`` on this path.
 ``make_advance(scene)`` returns the jitted one-frame advance used by the command line,
 which calls it frame by frame so that it can show progress and write each frame to
 disk as soon as it exists.  Both paths share the same step and give the same numbers.
+
+Staged capacity (pipe inflow): until its layer is released a pool particle is inactive
+and carries no mass, yet a step over the whole buffer costs the same for it as for an
+active one.  The release schedule is static and the pool is ordered by release time
+(``_scene.Inflow``), so ``capacity_schedule(scene)`` gives, per frame, a prefix of the
+buffer that holds every particle that can be active by the end of that frame; the
+prefixes are a few fixed sizes halving down from the full buffer (one compilation
+each).  ``make_prefix_advance(scene, n)`` steps only particles [0, n) and carries the
+rest, which are inactive and which the step leaves unchanged, as they are: the state and
+the frames equal those of the full-buffer advance bit for bit (tests/test_skips.py).
+``StagedAdvance`` drives it frame by frame for the command line; ``simulate`` (the
+differentiable path used by calibration) always steps the full buffer.
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ._scene import Params, Scene, State
 from ._step import make_step
@@ -83,3 +97,130 @@ def run(scene: Scene, state: State, params: Params, n_frames: int | None = None)
 def make_advance(scene: Scene):
     """Jitted ``advance(state, params) -> state`` over one frame (for host-side loops)."""
     return jax.jit(make_chunk(scene))
+
+
+def layer_time(scene: Scene, k):
+    """Release time t_k = t_start + k layer_dt [s] of pool layer ``k``, computed as ``_step.make_release``
+    does, in the scene's dtype."""
+    inf = scene.inflow
+    dt = np.dtype(scene.dtype).type
+    return dt(inf.t_start) + dt(k) * dt(inf.layer_dt)
+
+
+# smallest prefix worth a compilation of its own: below a few hundred particles a step costs about
+# the same whatever their number (docs/performance.md, "Static skips")
+MIN_STAGE = 256
+
+
+def capacity_schedule(
+    scene: Scene, n_frames: int | None = None, max_levels: int = 8, min_size: int = MIN_STAGE
+) -> tuple[int, ...]:
+    """Per frame, the size n of the buffer prefix [0, n) that the frame must step.
+
+    Without an inflow every frame steps the whole buffer.  With one, frame i (ending at
+    t_i = (i + 1) steps_per_frame dt) needs the bodies and every layer released before
+    t_i, plus a slack of one layer, two steps and 1e-3 t_i (the time in the state is a
+    running sum that drifts from i dt by rounding; ``StagedAdvance`` checks the real time
+    after each frame and reruns it on the whole buffer if the slack was short).  Each
+    frame gets the smallest of the sizes N, N/2, N/4, ... (at most ``max_levels``
+    halvings, none below the first frame's need nor below ``min_size``) that holds its
+    need, so a run compiles at most ``max_levels + 1`` programs and, above ``min_size``,
+    steps at most twice the particles it must.
+    """
+    N = scene.n_particles
+    nf = scene.n_frames if n_frames is None else n_frames
+    inf = scene.inflow
+    if inf is None:
+        return (N,) * nf
+    t_frame = scene.dt * scene.steps_per_frame
+    need = []
+    for i in range(nf):
+        t_i = (i + 1) * t_frame
+        t_due = t_i + inf.layer_dt + 2.0 * scene.dt + 1e-3 * t_i
+        layers = min(inf.n_layers, max(0, math.floor((t_due - inf.t_start) / inf.layer_dt) + 1))
+        need.append(min(N, inf.first + layers * inf.n_per_layer))
+    levels = [N]
+    while len(levels) <= max_levels and math.ceil(levels[-1] / 2) >= max(need[0], min_size, 1):
+        levels.append(math.ceil(levels[-1] / 2))
+    levels = sorted(levels)
+    return tuple(next(c for c in levels if c >= n) for n in need)
+
+
+def _split(state: State, n: int):
+    """(particles [0, n), particles [n, N)) of a state; scalars (t, n_lost) go with the first."""
+    N = state.x.shape[0]
+
+    def cut(lo, hi):
+        return jax.tree_util.tree_map(lambda a: a[lo:hi] if a.ndim and a.shape[0] == N else a, state)
+
+    return cut(0, n), cut(n, N)
+
+
+def make_prefix_advance(scene: Scene, n: int):
+    """Jitted ``advance(state, params) -> state`` over one frame that steps only particles
+    [0, n) of the buffer and carries particles [n, N) as the step carries an inactive one
+    (position, J, viscosity, internal fields and gate kept; velocity, affine matrix and stress
+    zero).  Exact (bit for bit the full advance) when particles [n, N) are inactive and none
+    of them is released during the frame (``StagedAdvance`` checks both)."""
+    chunk = make_chunk(scene)
+    if n >= scene.n_particles:
+        return jax.jit(chunk)
+
+    def advance(state, params):
+        head, tail = _split(state, n)
+        new = chunk(head, params)
+        tail = tail._replace(v=jnp.zeros_like(tail.v), C=jnp.zeros_like(tail.C), tau=jnp.zeros_like(tail.tau))
+        N = state.x.shape[0]
+
+        def join(a, b, c):
+            return jnp.concatenate([a, b]) if c.ndim and c.shape[0] == N else a
+
+        return jax.tree_util.tree_map(join, new, tail, state)
+
+    return jax.jit(advance)
+
+
+class StagedAdvance:
+    """Frame-by-frame driver: ``advance(i, state, params) -> state`` advances frame ``i`` (0-based)
+    on the prefix ``capacity_schedule(scene)[i]`` of the buffer (the whole buffer when
+    ``staged`` is False or the scene has no inflow).
+
+    ``compile(n)`` returns the advance for prefix size n (default: ``make_prefix_advance``;
+    the command line passes a cached, ahead-of-time compiled one).  Before a frame the
+    particles beyond the prefix must all be inactive, and after it the first of them must
+    still be due later than the state's time; otherwise (a state not from this schedule,
+    or time drift beyond the slack) the frame is run on the whole buffer instead, which is
+    always exact, and counted in ``fallbacks``.
+    """
+
+    def __init__(self, scene: Scene, staged: bool = True, compile=None, min_size: int | None = None):
+        self.scene = scene
+        N = scene.n_particles
+        m = MIN_STAGE if min_size is None else min_size
+        self.schedule = capacity_schedule(scene, min_size=m) if staged else (N,) * scene.n_frames
+        self._compile = compile or (lambda n: make_prefix_advance(scene, n))
+        self._programs: dict = {}
+        self.fallbacks = 0
+
+    def sizes(self, first_frame: int = 0) -> list[int]:
+        """The prefix sizes that frames ``first_frame``.. use, ascending."""
+        return sorted(set(self.schedule[first_frame:]))
+
+    def program(self, n: int):
+        if n not in self._programs:
+            self._programs[n] = self._compile(n)
+        return self._programs[n]
+
+    def __call__(self, i: int, state: State, params: Params) -> State:
+        sc = self.scene
+        N = sc.n_particles
+        n = self.schedule[i] if i < len(self.schedule) else N
+        if n < N and bool(jnp.any(state.active[n:])):
+            n = N
+        new = self.program(n)(state, params)
+        if n < N:
+            k = (n - sc.inflow.first) // sc.inflow.n_per_layer
+            if not layer_time(sc, k) >= float(new.t) + 0.5 * sc.dt:
+                self.fallbacks += 1
+                new = self.program(N)(state, params)
+        return new
