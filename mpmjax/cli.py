@@ -186,20 +186,22 @@ class _Signals:
 _ADVANCE_CACHE: dict = {}
 
 
-def _compiled_advance(sc, state, params):
-    """The compiled one-frame advance for this scene and these array shapes, kept for the
-    process (a few entries), so repeated runs of one scene (a resume, tests, notebooks)
-    compile once and run the very same program."""
+def _compiled_advance(sc, state, params, n=None):
+    """The compiled one-frame advance for this scene, these array shapes and the buffer prefix
+    [0, n) it steps (default: all; see ``_simulate.make_prefix_advance``), kept for the
+    process (a few scenes' worth), so repeated runs of one scene (a resume, tests, notebooks)
+    compile once and run the very same programs."""
     import jax
 
-    from ._simulate import make_advance
+    from ._simulate import make_prefix_advance
 
+    n = sc.n_particles if n is None else int(n)
     leaves, tree = jax.tree_util.tree_flatten((state, params))
-    key = (sc, tree, tuple((a.shape, str(a.dtype)) for a in leaves))
+    key = (sc, tree, tuple((a.shape, str(a.dtype)) for a in leaves), n)
     if key not in _ADVANCE_CACHE:
-        if len(_ADVANCE_CACHE) >= 4:
+        if len(_ADVANCE_CACHE) >= 24:
             _ADVANCE_CACHE.pop(next(iter(_ADVANCE_CACHE)))
-        _ADVANCE_CACHE[key] = make_advance(sc).lower(state, params).compile()
+        _ADVANCE_CACHE[key] = make_prefix_advance(sc, n).lower(state, params).compile()
     return _ADVANCE_CACHE[key]
 
 
@@ -218,6 +220,7 @@ def run_scene(
     resume: bool = False,
     on_frame=None,
     animate: bool = False,
+    staged: bool = True,
 ) -> dict:
     """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``
     (3D scenes also plan_view.h5, plan_view.png and sections.png; with ``animate=True``
@@ -234,6 +237,8 @@ def run_scene(
     files (frames written so far stay readable; summary.json gets ``status: failed``) and
     raises ``RunFailure`` naming the step, the time, the particle and the likely cause.
     ``on_frame(frame, state)``, if given, is called after each frame is on disk.
+    ``staged=False`` steps the whole particle buffer in every frame (with a pipe inflow the
+    default steps only the released part; the results are the same bit for bit).
 
     Returns the summary dict.  Raises ``SceneError`` on invalid input (including a
     checkpoint that does not match the scene) and ``Interrupted`` (a ``KeyboardInterrupt``)
@@ -248,6 +253,7 @@ def run_scene(
     from ._io import FrameWriter, atomic_write_text, config_hash, plot_result, read_checkpoint, read_result
     from ._io import write_checkpoint as _write_ckpt
     from ._observables import runout
+    from ._simulate import StagedAdvance
     from ._xdmf import write_xdmf
 
     out = Path(out)
@@ -294,9 +300,16 @@ def run_scene(
         f"{sc.viscous_update} viscous update), {sc.n_steps} steps to t = {sc.t_end:g} s"
     )
     t0 = time.perf_counter()
-    advance = _compiled_advance(sc, setup.state, setup.params)
+    # a pipe inflow's parked pool is stepped only once released: each frame steps the buffer prefix
+    # that holds every particle active by its end (a few sizes, compiled here; _simulate.StagedAdvance)
+    advance = StagedAdvance(sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n))
+    first_frame = int(ckpt[1]) if ckpt is not None else 0
+    for n in advance.sizes(first_frame):
+        advance.program(n)
     compile_s = time.perf_counter() - t0
-    log(f"compiled in {compile_s:.1f} s")
+    sizes = advance.sizes(first_frame)
+    staged_note = f" ({len(sizes)} stages of {', '.join(map(str, sizes))} particles)" if len(sizes) > 1 else ""
+    log(f"compiled in {compile_s:.1f} s{staged_note}")
     rho = float(setup.params.material.rho)
     spacing, axis, origin = info["particle_spacing_m"], info["runout_axis"], info["runout_origin_m"]
 
@@ -361,7 +374,7 @@ def run_scene(
                     except (OSError, KeyError, ValueError) as e:
                         raise SceneError(f"--resume {out}: {out / 'result.h5'} cannot be continued: {e}") from None
             for i in range(done, sc.n_frames):
-                new = advance(state, setup.params)
+                new = advance(i, state, setup.params)
                 jax.block_until_ready(new.x)
                 probs, outflow = _health.check(sc, cfg, state, new)
                 if probs:
