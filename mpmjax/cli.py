@@ -238,7 +238,8 @@ def run_scene(
     raises ``RunFailure`` naming the step, the time, the particle and the likely cause.
     ``on_frame(frame, state)``, if given, is called after each frame is on disk.
     ``staged=False`` steps the whole particle buffer in every frame (with a pipe inflow the
-    default steps only the released part; the results are the same bit for bit).
+    default steps only the released part; the results agree to float rounding, and a resumed
+    staged run is bit for bit the uninterrupted one).
 
     Returns the summary dict.  Raises ``SceneError`` on invalid input (including a
     checkpoint that does not match the scene) and ``Interrupted`` (a ``KeyboardInterrupt``)
