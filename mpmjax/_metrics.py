@@ -28,7 +28,9 @@ Plan-view metrics of 3D runs (``plan_view_summary``; x is the flow axis, y later
 to the base; bins of one cell size h on the run's x-y grid):
 
 ``thickness_map``
-    Volume of the active particles (J V0) in a bin's column / bin area [m].
+    Rest volume of the active particles (V0 = mass / rho) in a bin's column / bin area [m]: the
+    depth of material at its rest density.  Not J V0: J drifts in long runs (0.37..7.9 in
+    field-dambreak-3d at 400 s), which made J V0 thicknesses of 24 m where the surface is at 8 m.
 ``lobe_width``
     Widest transverse section of the deposit [m]: in each row of bins at fixed x, the distance
     between the outer edges of the outermost bins thicker than a threshold (summary.json: 10 % of
@@ -244,8 +246,8 @@ def thickness_map(x, volume, active, x_edges, y_edges):
     """Deposit thickness [m] per plan-view bin: the volume of the active particles in the bin's
     column divided by the bin's area (0 where empty).
 
-    With the current particle volume ``J * vol0`` this is the depth of material averaged over the
-    bin: a bin fully covered by one layer of particles of spacing s (ppc^2 particles of s^3
+    With the rest volumes ``vol0`` this is the depth of material at its rest density averaged over
+    the bin: a bin fully covered by one layer of particles of spacing s (ppc^2 particles of s^3
     each on an h x h bin, s = h / ppc) has a thickness of s.
     """
     vol = np.asarray(volume, float) * np.ones(np.shape(active))
@@ -394,7 +396,8 @@ def plan_view_series(x, v, mu, active, volume, x_edges, y_edges, *, min_count: i
 
     Args:
       x: positions [m], (F, n, 3); v: velocities [m/s], (F, n, 3); mu: viscosity [Pa s], (F, n);
-      active: bool (F, n); volume: current particle volumes J * vol0 [m^3], (F, n) or (n,).
+      active: bool (F, n); volume: particle volumes [m^3], (F, n) or (n,) (rest volumes vol0 in
+        ``plan_view_summary``).
       x_edges, y_edges: bin edges [m].
       min_count: the bin means (viscosity, speed) are nan in bins with fewer active particles.
     Returns a dict of (F, nx, ny) arrays: ``log10_mu`` (bin mean of log10 mu [log10 Pa s]),
@@ -492,7 +495,7 @@ def plan_view_summary(result, path=None) -> dict:
     elif cfg["boundary.y_hi"] == "symmetry":
         sym_y, mirror = float(hi[1]), "high"
     fr = result["frames"]
-    vol = np.asarray(fr["J"], float) * np.asarray(result["particles"]["vol0_m3"], float)
+    vol = np.asarray(result["particles"]["vol0_m3"], float)  # rest volumes: J drifts (thickness_map)
     maps = plan_view_series(fr["x_m"], fr["v_m_s"], fr["mu_pa_s"], fr["active"], vol, xe, ye, min_count=PLAN_MIN_COUNT)
     t = np.asarray(fr["t_s"], float)
     xc = 0.5 * (xe[1:] + xe[:-1])
