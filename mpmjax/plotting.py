@@ -615,7 +615,7 @@ def plot_3d_overview(result, maps, summary: dict, out_dir) -> list[Path]:
         for ax in axes[: len(picks) + 1]:
             ax.set_xlim(xe[occ[0].min()] - pad, xe[occ[0].max() + 1] + pad)
             ax.set_ylim(ye[occ[1].min()] - pad, ye[occ[1].max() + 1] + pad)
-    axes[len(picks)].set_title(f"t = {t[-1]:.3g} s: thickness (volume of the column / bin area)", fontsize=9)
+    axes[len(picks)].set_title(f"t = {t[-1]:.3g} s: thickness (rest volume of the column / bin area)", fontsize=9)
     axl = axes[-1]
     w = [np.nan if a is None else a for a in summary.get("lobe_width_m_per_frame", [])]
     axl.plot(t[: len(w)], w, "-o", ms=3, color="C0")
