@@ -20,7 +20,7 @@ import pytest
 from mpmjax import _simulate, cli
 from mpmjax._config import build, load_scene, validate
 from mpmjax._io import read_checkpoint, read_result
-from mpmjax._simulate import StagedAdvance, capacity_schedule, make_advance
+from mpmjax._simulate import StagedAdvance, capacity_schedule
 from mpmjax._step import _Stencil, make_step
 
 POUR = """
@@ -156,12 +156,16 @@ def test_staged_run_resumes_bit_for_bit(runs, pour_file, tmp_path):
     assert sa["final_runout_m"] == sb["final_runout_m"] and sa["mass_final_kg"] == sb["mass_final_kg"]
 
 
-def test_a_short_prefix_falls_back_to_the_whole_buffer(pour):
+def test_a_short_prefix_falls_back_to_the_whole_buffer(pour, runs):
     """A prefix that misses a layer due in the frame (or an active particle beyond it) is never
     used: the frame is rerun on the whole buffer, so the result is the full run's, bit for bit."""
     sc, st0, p = pour.scene, pour.state, pour.params
-    full = make_advance(sc)
-    adv = StagedAdvance(sc, min_size=MIN)
+
+    def compiled(n):  # the programs the command-line runs above compiled (process cache)
+        return cli._compiled_advance(sc, st0, p, n)
+
+    full = compiled(sc.n_particles)
+    adv = StagedAdvance(sc, min_size=MIN, compile=compiled)
     adv.schedule = (35,) * sc.n_frames  # frames 3.. release more than 35 particles
     a = b = st0
     for i in range(5):
@@ -203,7 +207,8 @@ def test_2d_has_no_third_dimension():
     assert st.x.shape[1] == 2 and st.C.shape[1:] == (2, 2) and st.tau.shape[1:] == (2, 2)
     assert len(s.scene.grid_shape) == 2
     # GIMP: 3 nodes per axis, 3^2 = 9 stencil nodes per particle (not 27)
-    assert _Stencil(s.scene, st.x).S == 9
+    w = jax.eval_shape(lambda x: _Stencil(s.scene, x).w, st.x)
+    assert w.shape == (st.x.shape[0], 9)
 
 
 def _2d_raw():
