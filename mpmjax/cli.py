@@ -309,7 +309,11 @@ def run_scene(
         advance.program(n)
     compile_s = time.perf_counter() - t0
     sizes = advance.sizes(first_frame)
-    staged_note = f" ({len(sizes)} stages of {', '.join(map(str, sizes))} particles)" if len(sizes) > 1 else ""
+    staged_note = (
+        f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
+        if sizes != [sc.n_particles]
+        else ""
+    )
     log(f"compiled in {compile_s:.1f} s{staged_note}")
     rho = float(setup.params.material.rho)
     spacing, axis, origin = info["particle_spacing_m"], info["runout_axis"], info["runout_origin_m"]
