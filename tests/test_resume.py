@@ -170,6 +170,9 @@ def test_kill_9_leaves_readable_frames_and_resumes(reference, tmp_path):
         assert proc.poll() is None, proc.stderr.read()
         assert time.time() - t0 < 120
         time.sleep(0.01)
+    # freeze the run first: under load it could otherwise finish its remaining frames while the
+    # live file is read, before the kill arrives (seen once on the loaded 2-core VM)
+    proc.send_signal(signal.SIGSTOP)
     live = read_result(out / "result.h5")
     proc.send_signal(signal.SIGKILL)
     proc.communicate(timeout=60)
