@@ -466,7 +466,9 @@ def run_scene(
         "status": "complete",
         "wall_s": wall,
         "compile_s": compile_s,
-        "particle_steps_per_s": sc.n_particles * sc.n_steps / wall,
+        # particle-steps actually stepped: a staged pipe pour steps a prefix of the buffer per frame
+        "particle_steps_per_s": sum(advance.schedule) * sc.steps_per_frame / wall,
+        "particles_stepped_mean": sum(advance.schedule) / len(advance.schedule),
         "mass_initial_kg": acc["mass0"],
         "mass_final_kg": mass1,
         "mass_unit": "kg per metre of depth" if sc.dim == 2 else "kg",
