@@ -88,6 +88,10 @@ FULL_CASES = [
     ("h=0.005 quadratic", {**_h(0.005), "numerics.shape": "quadratic"}),
     ("h=0.02 cubic", {**_h(0.02), "numerics.shape": "cubic"}),
     ("h=0.02 float64", {**_h(0.02), **F64}),
+    # does the particles-per-cell effect vanish with the cell size? (ppc 1 and 3 at h = 0.02, 0.005 m)
+    ("h=0.02 ppc=1", {**_h(0.02), "numerics.ppc": 1}),
+    ("h=0.005 ppc=1", {**_h(0.005), "numerics.ppc": 1}),
+    ("h=0.005 ppc=3", {**_h(0.005), "numerics.ppc": 3}),
 ]
 CI_REFERENCE = ("ref h=0.01", {})
 CI_CASES = [
@@ -310,12 +314,15 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
             ax.annotate(r["label"], (ci, ei), fontsize=6.5, xytext=(3, 2), textcoords="offset points")
             if r["label"] == "default":
                 ax.scatter([ci], [ei], marker="*", s=160, facecolors="none", edgecolors="k", zorder=4)
+        chk = [r for r in pts if r["label"].startswith("check")]
+        if chk and chk[0][key] > 0:
+            ax.axhline(chk[0][key], ls="--", c="tab:blue", lw=1, label="reference error estimate (check level)")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("time loop CPU time (s, process_time, excl. compile)")
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8, loc="upper right")
+        ax.legend(fontsize=7, loc="best", framealpha=0.6)
     bad = [r["label"] for r in rows if r.get("status") != "ok"]
     fig.suptitle(title + (f"\nnot plotted (failed/rejected): {', '.join(bad)}" if bad else ""), fontsize=9)
     fig.tight_layout()
