@@ -117,7 +117,9 @@ def test_resume_refuses_another_scene(tmp_path, capsys):
     with pytest.raises(cli.Interrupted):
         cli.run_scene(SCENE, tmp_path, OVER, quiet=True, on_frame=_stop_at(2, KeyboardInterrupt()))
     other = OVER + ["material.mu0_pa_s=5"]
-    argv = ["run", SCENE, "--quiet", "--resume", str(tmp_path)] + [a for o in other for a in ("--set", o)]
+    argv = ["run", SCENE, "--quiet", "--no-animation", "--resume", str(tmp_path)] + [
+        a for o in other for a in ("--set", o)
+    ]
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert "material.mu0_pa_s: 4.0 in the checkpoint, 5.0 now" in err and "Traceback" not in err
@@ -137,7 +139,19 @@ def test_resume_of_a_complete_run_or_empty_folder_is_an_input_error(reference, t
 
 def test_ctrl_c_on_the_command_line_exits_130_and_resumes(reference, tmp_path):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "mpmjax.cli", "run", SCENE, "--out", str(out), "--checkpoint-every", "2", "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "mpmjax.cli",
+        "run",
+        SCENE,
+        "--out",
+        str(out),
+        "--checkpoint-every",
+        "2",
+        "--quiet",
+        "--no-animation",
+    ]
     cmd += [a for o in OVER for a in ("--set", o)]
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
@@ -153,7 +167,7 @@ def test_ctrl_c_on_the_command_line_exits_130_and_resumes(reference, tmp_path):
     n = read_result(out / "result.h5")["frames"]["t_s"].shape[0]
     assert 3 <= n < N_FRAMES + 1  # interrupted after frame 2, before the end
     assert read_checkpoint(out / "checkpoint.h5")[1] == n - 1
-    assert cli.main(["run", "--quiet", "--resume", str(out)]) == 0
+    assert cli.main(["run", "--quiet", "--no-animation", "--resume", str(out)]) == 0
     _assert_same_result(reference / "result.h5", out / "result.h5")
 
 
@@ -162,7 +176,19 @@ def test_kill_9_leaves_readable_frames_and_resumes(reference, tmp_path):
     # after SIGKILL nothing is closed, yet every flushed frame reads back, and --resume cuts
     # result.h5 back to the last periodic checkpoint and gives the uninterrupted result
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "mpmjax.cli", "run", SCENE, "--out", str(out), "--checkpoint-every", "2", "--quiet"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "mpmjax.cli",
+        "run",
+        SCENE,
+        "--out",
+        str(out),
+        "--checkpoint-every",
+        "2",
+        "--quiet",
+        "--no-animation",
+    ]
     cmd += [a for o in OVER for a in ("--set", o)]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, JAX_PLATFORMS="cpu"), stderr=subprocess.PIPE, text=True)
     t0 = time.time()
@@ -186,5 +212,5 @@ def test_kill_9_leaves_readable_frames_and_resumes(reference, tmp_path):
         np.testing.assert_array_equal(live["frames"][k], ref["frames"][k][:n_live], err_msg=k)
     k_ckpt = read_checkpoint(out / "checkpoint.h5")[1]
     assert k_ckpt % 2 == 0 and k_ckpt <= n - 1
-    assert cli.main(["run", "--quiet", "--resume", str(out)]) == 0
+    assert cli.main(["run", "--quiet", "--no-animation", "--resume", str(out)]) == 0
     _assert_same_result(reference / "result.h5", out / "result.h5")
