@@ -278,24 +278,6 @@ def make_release(scene: Scene):
     return release
 
 
-def _behind_exit(scene: Scene, x):
-    inf = scene.inflow
-    d = jnp.asarray(inf.direction, x.dtype)
-    return (x - jnp.asarray(inf.point, x.dtype)[None, :]) @ d < 0.0
-
-
-def pipe_particles(scene: Scene, x):
-    """Particles inside the pipe end (bool, n): behind the exit plane by at most
-    ``inflow.pipe_length`` and within the pipe's own cross-section (half-width or radius)."""
-    inf = scene.inflow
-    d = jnp.asarray(inf.direction, x.dtype)
-    rel = x - jnp.asarray(inf.point, x.dtype)[None, :]
-    along = rel @ d
-    lateral2 = jnp.sum((rel - along[:, None] * d[None, :]) ** 2, axis=1)
-    tol = 1e-6 * scene.h
-    return (along <= tol) & (along >= -inf.pipe_length - tol) & (lateral2 <= (inf.half_width + tol) ** 2)
-
-
 def pipe_nodes(scene: Scene) -> np.ndarray:
     """Grid nodes inside the pipe (bool, n_nodes): behind the exit plane by at most
     ``inflow.pipe_length`` and within the cross-section (half-width max(width/2, h/2), so a
@@ -365,19 +347,10 @@ def make_step(scene: Scene):
         if pipe is not None:
             on = (state.t >= inf.t_start) & (state.t < inf.t_stop)
             v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
-            v_free = v_new
             v_new = jnp.where(jnp.asarray(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
 
         # G2P
         vi = v_new[st.idx]  # (n, S, dim)
-        if pipe is not None:
-            # Material behind the exit plane but outside the pipe's cross-section (around, above
-            # or behind a pipe narrower than a cell, which shares its nodes) is outside the pipe
-            # wall: it moves with the grid velocity before the pipe drive.  Driven, it was dragged
-            # at the pipe speed against its undriven neighbours and stretched without bound
-            # (field-pipe-3d, h = 0.5 m: J = 10 at the bed beside the pipe at 155 s, a failed run).
-            outside = state.active & _behind_exit(scene, state.x) & ~pipe_particles(scene, state.x)
-            vi = jnp.where(outside[:, None, None], v_free[st.idx], vi)
         v_pic = _wsum(st.w, vi)
         L = _outer_sum(vi, st.dw)
         if scene.transfer == "apic":
