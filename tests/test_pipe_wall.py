@@ -2,9 +2,11 @@
 inlet (driven grid nodes, ``_step.pipe_nodes``) must not drag it.
 
 A pipe 2 cm wide on 4 cm cells shares its driven nodes with whatever lies beside or above it.
-Before the fix that material was dragged at the pipe speed against its undriven neighbours and
-stretched without bound (field-pipe-3d at its default h = 0.5 m failed at 155 s with J = 10 at
-the bed beside the pipe).
+That material is dragged at the pipe speed against its undriven neighbours and stretched
+(field-pipe-3d at its default h = 0.5 m fails at 155 s with J = 10 at the bed beside the pipe).
+A fix that gave such material the undriven grid velocity (commit 785f854) passed this test and
+completed field-pipe-3d, but broke flume-deposition (J = 10 above the pipe at 443 s: two velocity
+fields for neighbouring particles) and was reverted; this test records the open defect.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import tomllib
 from importlib import resources
 
 import numpy as np
+import pytest
 
 from mpmjax import _config
 from mpmjax._simulate import run
@@ -44,6 +47,9 @@ def _scene():
     return _config.build(_config.validate(raw))
 
 
+@pytest.mark.xfail(
+    strict=True, reason="open defect: a sub-cell pipe's driven nodes drag the material beside it (docs/scenarios.md)"
+)
 def test_material_beside_a_sub_cell_pipe_is_not_pumped():
     setup = _scene()
     n_block = setup.scene.inflow.first
