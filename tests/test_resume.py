@@ -137,29 +137,23 @@ def test_resume_of_a_complete_run_or_empty_folder_is_an_input_error(reference, t
     assert "--checkpoint-every" in capsys.readouterr().err
 
 
-def test_ctrl_c_on_the_command_line_exits_130_and_resumes(reference, tmp_path):
-    out = tmp_path / "run"
-    cmd = [
-        sys.executable,
-        "-m",
-        "mpmjax.cli",
-        "run",
-        SCENE,
-        "--out",
-        str(out),
-        "--checkpoint-every",
-        "2",
-        "--quiet",
-        "--no-animation",
-    ]
-    cmd += [a for o in OVER for a in ("--set", o)]
+def _start_cli_run_until_checkpoint(out):
+    """Start ``mpmjax run`` in a subprocess and return it once checkpoint.h5 (frame 2) is on disk."""
+    cmd = [sys.executable, "-m", "mpmjax.cli", "run", SCENE, "--out", str(out), "--checkpoint-every", "2"]
+    cmd += ["--quiet", "--no-animation"] + [a for o in OVER for a in ("--set", o)]
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
     t0 = time.time()
-    while not (out / "checkpoint.h5").exists():  # frame 2 is on disk
+    while not (out / "checkpoint.h5").exists():
         assert proc.poll() is None, proc.stderr.read()
         assert time.time() - t0 < 120
         time.sleep(0.01)
+    return proc
+
+
+def test_ctrl_c_on_the_command_line_exits_130_and_resumes(reference, tmp_path):
+    out = tmp_path / "run"
+    proc = _start_cli_run_until_checkpoint(out)
     proc.send_signal(signal.SIGINT)
     err = proc.communicate(timeout=120)[1]
     assert proc.returncode == 130, err
@@ -176,26 +170,7 @@ def test_kill_9_leaves_readable_frames_and_resumes(reference, tmp_path):
     # after SIGKILL nothing is closed, yet every flushed frame reads back, and --resume cuts
     # result.h5 back to the last periodic checkpoint and gives the uninterrupted result
     out = tmp_path / "run"
-    cmd = [
-        sys.executable,
-        "-m",
-        "mpmjax.cli",
-        "run",
-        SCENE,
-        "--out",
-        str(out),
-        "--checkpoint-every",
-        "2",
-        "--quiet",
-        "--no-animation",
-    ]
-    cmd += [a for o in OVER for a in ("--set", o)]
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, JAX_PLATFORMS="cpu"), stderr=subprocess.PIPE, text=True)
-    t0 = time.time()
-    while not (out / "checkpoint.h5").exists():
-        assert proc.poll() is None, proc.stderr.read()
-        assert time.time() - t0 < 120
-        time.sleep(0.01)
+    proc = _start_cli_run_until_checkpoint(out)
     # freeze the run first: under load it could otherwise finish its remaining frames while the
     # live file is read, before the kill arrives (seen once on the loaded 2-core VM)
     proc.send_signal(signal.SIGSTOP)
