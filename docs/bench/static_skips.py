@@ -53,6 +53,19 @@ def rheology():
         record(part="rheology", model=m, internal=sorted(s.state.internal), **r)
 
 
+# the dam-break block as a thin 3D slab: one cell thick, periodic in y (the "no 3D cost in 2D" case)
+SLAB_3D = [
+    "domain.dim=3",
+    "domain.lo_m=[0.0, 0.0, 0.0]",
+    "domain.hi_m=[2.0, 0.01, 0.24]",
+    'boundary.y_lo="periodic"',
+    'boundary.y_hi="periodic"',
+    'boundary.z_lo="noslip"',
+    'boundary.z_hi="noslip"',
+    'bodies=[{type = "box", lo_m = [0.0, 0.0, 0.0], hi_m = [0.2, 0.01, 0.2]}]',
+]
+
+
 def dim():
     """2D dam break against a thin 3D slab (periodic y, one cell thick) of the same block."""
     from mpmjax import load_scene
@@ -60,17 +73,7 @@ def dim():
 
     s2 = build(load_scene("dambreak-lab", ["numerics.dt_s=2e-4"]))
     record(part="dim", case="2D", **measure(s2, 400))
-    over3 = [
-        "domain.dim=3",
-        "domain.lo_m=[0.0, 0.0, 0.0]",
-        "domain.hi_m=[2.0, 0.01, 0.24]",
-        'boundary.y_lo="periodic"',
-        'boundary.y_hi="periodic"',
-        'boundary.z_lo="noslip"',
-        'boundary.z_hi="noslip"',
-        'bodies=[{type = "box", lo_m = [0.0, 0.0, 0.0], hi_m = [0.2, 0.01, 0.2]}]',
-        "numerics.dt_s=2e-4",
-    ]
+    over3 = SLAB_3D + ["numerics.dt_s=2e-4"]
     s3 = build(load_scene("dambreak-lab", over3))
     record(part="dim", case="3D slab (periodic y, 1 cell)", **measure(s3, 400))
 
@@ -101,16 +104,7 @@ def rheology_dim_interleaved():
         "newtonian": ["material.model=newtonian", "material.viscosity_pa_s=4.0"],
         "bingham": ["material.model=bingham", "material.viscosity_pa_s=0.65", "material.yield_stress_pa=36.0"],
         "coussot": [],
-        "coussot 3D slab": [
-            "domain.dim=3",
-            "domain.lo_m=[0.0, 0.0, 0.0]",
-            "domain.hi_m=[2.0, 0.01, 0.24]",
-            'boundary.y_lo="periodic"',
-            'boundary.y_hi="periodic"',
-            'boundary.z_lo="noslip"',
-            'boundary.z_hi="noslip"',
-            'bodies=[{type = "box", lo_m = [0.0, 0.0, 0.0], hi_m = [0.2, 0.01, 0.2]}]',
-        ],
+        "coussot 3D slab": SLAB_3D,
     }
     steps = 400
     progs = {}
