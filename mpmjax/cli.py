@@ -305,10 +305,10 @@ def run_scene(
     # that holds every particle active by its end (a few sizes, compiled here; _simulate.StagedAdvance)
     advance = StagedAdvance(sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n))
     first_frame = int(ckpt[1]) if ckpt is not None else 0
-    for n in advance.sizes(first_frame):
+    sizes = advance.sizes(first_frame)
+    for n in sizes:
         advance.program(n)
     compile_s = time.perf_counter() - t0
-    sizes = advance.sizes(first_frame)
     staged_note = (
         f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
         if sizes != [sc.n_particles]
