@@ -91,9 +91,11 @@ def _fluid(dim: int, n_target: int, dtype: str):
 COMBOS = ((2, "float32"), (2, "float64"), (3, "float32"), (3, "float64"))
 
 
-def bench_scaling(sizes, combos=COMBOS, target=1e7, min_steps=20, reps=3, log=print):
-    """Particle-steps/s against the particle count, per (dim, dtype); steps ~ target / n."""
-    rows = []
+def bench_scaling(sizes, combos=COMBOS, target=1e7, min_steps=20, reps=3, log=print, rows=None):
+    """Particle-steps/s against the particle count, per (dim, dtype); steps ~ target / n.
+
+    Rows are appended to ``rows`` (a new list if None) as they are measured."""
+    rows = [] if rows is None else rows
     for dim, dtype in combos:
         for n in sizes:
             setup = _fluid(dim, int(n), dtype)
@@ -263,41 +265,11 @@ def add_arguments(p):
     )
 
 
-def run_bench(args) -> int:
+def _meta(args, quick: bool, large: bool) -> dict:
     import jax
 
-    from ._config import build, load_scene, validate
-
-    if args.steps < 1:
-        raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")
-    quick = bool(getattr(args, "quick", False))
-    large = bool(getattr(args, "large", False))
-
-    def log(*a):
-        print(*a, file=sys.stderr, flush=True)
-
-    reps = 1 if quick else 3
-    steps = min(args.steps, 20) if quick else args.steps
-    results = {}
-    cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
-    results["default-scene"] = _measure(build(cfg), steps, reps)
-    raw = json.loads(json.dumps(MPM88))
-    raw["numerics"]["dtype"] = args.dtype
-    setup = build(validate(raw))
-    assert setup.scene.n_particles == 8192
-    results["mpm88-equivalent"] = _measure(setup, steps, reps)
-    for k, r in results.items():
-        log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
     sizes = [1e3] if quick else [1e3, 1e4, 1e5] + ([1e6] if large else [])
-    # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
-    combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
-    scaling = bench_scaling(
-        sizes, combos, target=1e4 if quick else 1e7, min_steps=5 if quick else 20, reps=reps, log=log
-    )
-    gsteps = [10] if quick else [100, 400, 1600]
-    gradient = bench_gradient(gsteps, args.dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log)
-    batch = bench_batch(5 if quick else 400, 16, args.dtype, reps=reps, coarse=quick, log=log)
-    meta = {
+    return {
         "machine": platform.machine(),
         "processor": platform.processor(),
         "cpus": os.cpu_count(),
@@ -314,9 +286,67 @@ def run_bench(args) -> int:
         else "1e6 particles skipped (pass --large): on 2 CPU cores one step of 1e6 "
         "particles takes ~0.3-1 s, so a measurement of a few dozen steps takes minutes per point",
     }
-    doc = {"meta": meta, "results": results, "scaling": scaling, "gradient": gradient, "batch": batch}
-    with open(args.out, "w") as f:
+
+
+def _write_json(path, doc) -> None:
+    tmp = f"{path}.part"
+    with open(tmp, "w") as f:
         json.dump(doc, f, indent=2)
+    os.replace(tmp, path)
+
+
+def run_bench(args) -> int:
+
+    from ._config import build, load_scene, validate
+
+    if args.steps < 1:
+        raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")
+    quick = bool(getattr(args, "quick", False))
+    large = bool(getattr(args, "large", False))
+
+    def log(*a):
+        print(*a, file=sys.stderr, flush=True)
+
+    reps = 1 if quick else 3
+    steps = min(args.steps, 20) if quick else args.steps
+    results = {}
+    doc = {"meta": _meta(args, quick, large), "results": results, "complete": False}
+
+    def save():
+        # after every section, atomically: an interrupted or killed bench keeps what it measured
+        _write_json(args.out, doc)
+
+    cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
+    results["default-scene"] = _measure(build(cfg), steps, reps)
+    raw = json.loads(json.dumps(MPM88))
+    raw["numerics"]["dtype"] = args.dtype
+    setup = build(validate(raw))
+    assert setup.scene.n_particles == 8192
+    results["mpm88-equivalent"] = _measure(setup, steps, reps)
+    for k, r in results.items():
+        log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
+    save()
+    sizes = [1e3] if quick else [1e3, 1e4, 1e5] + ([1e6] if large else [])
+    # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
+    combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
+    scaling = doc["scaling"] = []
+
+    def log_row(*a):
+        log(*a)
+        save()
+
+    bench_scaling(
+        sizes, combos, target=1e4 if quick else 1e7, min_steps=5 if quick else 20, reps=reps, log=log_row, rows=scaling
+    )
+    gsteps = [10] if quick else [100, 400, 1600]
+    gradient = doc["gradient"] = bench_gradient(
+        gsteps, args.dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log
+    )
+    save()
+    batch = doc["batch"] = bench_batch(5 if quick else 400, 16, args.dtype, reps=reps, coarse=quick, log=log)
+    doc["complete"] = True
+    save()
+    meta = doc["meta"]
     print(f"{'configuration':20s} {'particles':>9s} {'steps':>6s} {'compile s':>9s} {'wall s':>8s} {'p-steps/s':>10s}")
     for k, r in results.items():
         print(

@@ -24,7 +24,9 @@ def _pos(x):
 
 
 def test_top_level_keys_and_meta(doc):
-    assert set(doc) == {"meta", "results", "scaling", "gradient", "batch"}
+    assert set(doc) == {"meta", "results", "scaling", "gradient", "batch", "complete"}
+    # the file is rewritten after every section; the last write marks it complete
+    assert doc["complete"] is True
     m = doc["meta"]
     assert m["quick"] is True and m["backend"] and m["jax"] and m["cpus"] >= 1
     assert m["scaling_sizes"] == [1e3] and "1e6" in m["note_1e6"]

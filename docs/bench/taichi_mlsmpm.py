@@ -12,10 +12,11 @@ box walls three cells thick.  The particle block and the material are those of
 particle-step does not depend on dt.
 
 Prints one JSON line: particle-steps per second (best of ``reps``), threads, compile time.
-usage: python taichi_mlsmpm.py [STEPS] [THREADS]
+usage: [TAICHI_ARCH=cpu|cuda] python taichi_mlsmpm.py [STEPS] [THREADS]
 """
 
 import json
+import os
 import sys
 import time
 
@@ -23,7 +24,11 @@ import taichi as ti
 
 STEPS = int(sys.argv[1]) if len(sys.argv) > 1 else 2000
 THREADS = int(sys.argv[2]) if len(sys.argv) > 2 else 2
-ti.init(arch=ti.cpu, cpu_max_num_threads=THREADS, default_fp=ti.f32, offline_cache=False)
+# TAICHI_ARCH=cuda runs the same kernels on an NVIDIA GPU (THREADS is then ignored)
+ARCH = os.environ.get("TAICHI_ARCH", "cpu")
+if ARCH not in ("cpu", "cuda"):
+    raise SystemExit(f"TAICHI_ARCH = {ARCH!r} is invalid: allowed 'cpu' or 'cuda'")
+ti.init(arch=getattr(ti, ARCH), cpu_max_num_threads=THREADS, default_fp=ti.f32, offline_cache=False)
 
 N_GRID = 128
 DX = 1.0 / N_GRID
@@ -123,6 +128,7 @@ print(
     json.dumps(
         {
             "code": f"taichi {'.'.join(map(str, ti.__version__))} MLS-MPM (mpm88 configuration)",
+            "arch": ARCH,
             "threads": THREADS,
             "n_particles": N,
             "steps": STEPS,
