@@ -118,6 +118,16 @@ SCHEMA: dict[str, Key] = {
         "Fixed time step; 0 means from the stability limits. A value above the limit is an error.",
         lo=0.0,
     ),
+    "numerics.grid_density_cap": Key(
+        float,
+        0.0,
+        "-",
+        "Grid volume check for thin deposits: a particle's J is capped at (1 + cap) / phi, phi the packing "
+        "fraction of reference volume measured on the grid (nodal mass / (rho h^d), wall-corrected) and "
+        "interpolated to the particle; 0 turns the check off (docs/scenarios.md, overpacking).",
+        lo=0.0,
+        hi=1.0,
+    ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
@@ -980,6 +990,7 @@ def build(cfg: dict) -> Setup:
         walls=tuple(walls),
         shape=cfg["numerics.shape"],
         lp_cells=0.5 / cfg["numerics.ppc"],
+        grid_density_cap=float(cfg["numerics.grid_density_cap"]),
         transfer=cfg["numerics.transfer"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

@@ -162,6 +162,8 @@ class Scene:
       inflow: optional pipe inflow (``Inflow``; its pool is part of the particle buffer).
       terrain: optional height-map boundary (``Terrain``).
       dtype: ``float32`` or ``float64``.
+      grid_density_cap: 0 (off) or the tolerance of the grid volume check: J <= (1 + cap) / phi,
+        phi the grid-measured packing fraction at the particle (``_step``).
     """
 
     dim: int
@@ -188,6 +190,7 @@ class Scene:
     dtype: str = "float32"
     inflow: Inflow | None = None
     terrain: Terrain | None = None
+    grid_density_cap: float = 0.0
 
     @property
     def n_nodes(self) -> int:

@@ -104,3 +104,17 @@ def weights_1d(kind: str, xi, h: float, lp_cells: float = 0.25):
     else:  # pragma: no cover - validated at scene load
         raise ValueError(f"unknown shape function {kind!r}; allowed: {sorted(STENCIL)}")
     return base.astype(jnp.int32), w, dw / h
+
+
+def kernel_1d(kind: str, r, lp_cells: float = 0.25):
+    """The 1-D weight N(r) of a node at signed distance r (cells) from a particle."""
+    a = jnp.abs(r)
+    if kind == "linear":
+        return jnp.maximum(0.0, 1.0 - a)
+    if kind == "quadratic":
+        return jnp.where(a < 0.5, 0.75 - a * a, jnp.where(a < 1.5, 0.5 * (1.5 - a) ** 2, 0.0))
+    if kind == "cubic":
+        return _cubic_kernel(r)[0]
+    if kind == "gimp":
+        return _gimp_kernel(r, lp_cells)[0]
+    raise ValueError(f"unknown shape function {kind!r}; allowed: {sorted(STENCIL)}")

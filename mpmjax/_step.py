@@ -11,7 +11,8 @@ One explicit step (update-stress-last):
    position; particles pushed back out of walls (never silently clamped elsewhere);
    particles whose stencil leaves the grid, or whose state is not finite, are
    deactivated and counted in ``n_lost``;
-5. particle update: J <- J det(I + dt L); rheology (structure, viscosity);
+5. particle update: J <- J det(I + dt L) (with ``numerics.grid_density_cap``, then capped by the
+   grid-measured packing, see ``node_fill``); rheology (structure, viscosity);
    deviatoric stress by the Maxwell exponential update or the explicit law.
 
 0. (pipe inflow only) pool particles whose layer time falls in this step are switched on;
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import itertools
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -295,6 +297,45 @@ def pipe_nodes(scene: Scene) -> np.ndarray:
     return (along <= tol) & (along >= -inf.pipe_length - tol) & (lateral <= half + tol)
 
 
+def node_fill(scene: Scene) -> np.ndarray:
+    """Per node, the packing fraction phi it would measure with the whole domain filled at the
+    seeding lattice (spacing 2 lp_cells cells, half a spacing off each wall): 1 in the interior,
+    less where the kernel reaches through a wall.  phi = (1 - sum over the lattice sites beyond
+    each wall of N(site - node) * spacing), multiplied over the walls (exact for box walls on
+    different axes; inclined planes and terrain are not counted, so there phi is low and the
+    grid volume check does not act).
+    """
+    xn = scene.node_positions()
+    sp = 2.0 * scene.lp_cells
+    reach = _shapes.SUPPORT[scene.shape] + 1.0
+    s_k = (np.arange(int(np.ceil(reach / sp)) + 1) + 0.5) * sp  # sites beyond the wall, cells
+    fill = np.ones(len(xn))
+    for wall in scene.walls:
+        nrm = np.asarray(wall.normal, float)
+        nrm = nrm / np.linalg.norm(nrm)
+        d = (xn - np.asarray(wall.point)) @ nrm / scene.h  # cells, positive inside
+        r = -s_k[None, :] - d[:, None]  # site minus node
+        with jax.ensure_compile_time_eval():  # a constant, also when make_step runs under a trace
+            missing = np.asarray(_shapes.kernel_1d(scene.shape, jnp.asarray(r), scene.lp_cells)).sum(axis=1) * sp
+        fill = fill * np.clip(1.0 - missing, 0.0, 1.0)
+    return fill
+
+
+def packing_fraction(scene: Scene, mass, st, rho, fill):
+    """phi at each particle: the reference volume packed around it, measured on the grid.
+
+    Nodal phi_i = m_i / (rho h^d) (with m = rho V0 per particle: reference volume per node
+    volume), interpolated to the particle with its own weights and divided by the same
+    interpolation of ``fill`` (``node_fill``), so that a domain filled at the seeding lattice
+    gives exactly 1 at every particle, walls included, and 1/J where it is uniformly strained.
+    """
+    dtp = mass.dtype
+    phi_node = mass / (rho * scene.h**scene.dim)
+    phi_p = jnp.sum(st.w * phi_node[st.idx], axis=1)
+    fill_p = jnp.sum(st.w * jnp.asarray(fill, dtp)[st.idx], axis=1)
+    return phi_p / jnp.maximum(fill_p, 1e-6)
+
+
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
 EMPTY_NODE_FRACTION = 1e-9
 
@@ -320,6 +361,9 @@ def make_step(scene: Scene):
         xn = scene.node_positions()
         t_mask = xn[:, -1] <= terrain.height(xn[:, :-1]) + 1e-6 * scene.h
         t_nrm = terrain.normal(xn[:, :-1])
+
+    cap = scene.grid_density_cap
+    fill = node_fill(scene) if cap > 0.0 else None
 
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
 
@@ -388,6 +432,14 @@ def make_step(scene: Scene):
 
         # particle update: volume, rheology, stress
         J = state.J * jnp.linalg.det(jnp.eye(dim, dtype=dtp)[None] + dt * L)
+        if fill is not None:
+            # grid volume check (numerics.grid_density_cap): the reference volume packed around the
+            # particle, measured on the grid (phi = nodal mass / (rho h^d), divided by the packing a
+            # full domain would give there, so walls do not count as gaps).  A particle whose J says
+            # it is less dense than that by more than the cap gets J = (1 + cap) / phi, so its
+            # pressure sees gaps closed between particles that no velocity gradient registered.
+            phi_p = packing_fraction(scene, mass, st, params.material.rho, fill)
+            J = jnp.minimum(J, (1.0 + cap) / jnp.maximum(phi_p, 1e-6))
         dprime, dd = shear_measures(L, dim)
         shear = shear_rate(dd, scene.shear_measure)
         gate = state.gate
