@@ -4,7 +4,8 @@
 #   the thin flume deposit at h = 2 cm after 300 s (docs/bench/thin_deposit.py), and the lab dam break
 #   at h = 2.5 mm with the cap (against the float64 reference runout of `mpmjax pareto`).
 # Each run appends one JSON line to $OUT/results.jsonl as it ends; logs go to $OUT/log.txt.
-# usage: OUT=dir bash docs/bench/gpu_pipe.sh
+# Part "refine": field-pipe-3d in its current (cropped 40 m x 25 m) box at h = 0.25 and 0.125 m, no cap.
+# usage: OUT=dir bash docs/bench/gpu_pipe.sh [all|refine]
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 OUT="${OUT:-/tmp/gpu_out}"
@@ -35,11 +36,18 @@ PY
 }
 
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader | tee -a "$log"
-run_scene 130 field-pipe-3d fp3d_h025_cap0 --set domain.cell_size_m=0.25
-run_scene 130 field-pipe-3d fp3d_h025_cap01 --set domain.cell_size_m=0.25 --set numerics.grid_density_cap=0.1
+if [ "${1:-all}" = refine ]; then
+  run_scene 100 field-pipe-3d fp3d_box40_h025 --set domain.cell_size_m=0.25
+  run_scene 200 field-pipe-3d fp3d_box40_h0125 --set domain.cell_size_m=0.125
+  exit 0
+fi
+# the thesis's 150 m x 50 m box (the scene's box when these runs were recorded)
+big=(--set "domain.lo_m=[0.0, -25.0, 0.0]" --set "domain.hi_m=[150.0, 25.0, 2.0]")
+run_scene 130 field-pipe-3d fp3d_h025_cap0 "${big[@]}" --set domain.cell_size_m=0.25
+run_scene 130 field-pipe-3d fp3d_h025_cap01 "${big[@]}" --set domain.cell_size_m=0.25 --set numerics.grid_density_cap=0.1
 for cap in 0 0.1; do
   timeout 60 "$py" docs/bench/thin_deposit.py flume-deposition 300 domain.cell_size_m=0.02 \
     numerics.grid_density_cap=$cap 2>> "$log" | grep '^{' | tee -a "$OUT/results.jsonl"
 done
 run_scene 100 dambreak-lab lab_h00025_cap01 --set domain.cell_size_m=0.0025 --set numerics.grid_density_cap=0.1
-run_scene 150 field-pipe-3d fp3d_h0125_cap0 --set domain.cell_size_m=0.125
+run_scene 150 field-pipe-3d fp3d_h0125_cap0 "${big[@]}" --set domain.cell_size_m=0.125
