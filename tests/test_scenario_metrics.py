@@ -151,13 +151,17 @@ def _synthetic_result(cfg, frames_x, frames_v, frames_mu):
     }
 
 
+# the thesis's 150 m x 50 m x 2 m box (field-pipe-3d's own box is smaller): the bins below are laid out in it
+_THESIS_BOX = ["domain.lo_m=[0.0, -25.0, 0.0]", "domain.hi_m=[150.0, 25.0, 2.0]"]
+
+
 def test_plan_view_summary_lobe_and_channel_of_a_synthetic_pipe_lobe(tmp_path):
     """A 6 m wide, 2 m thick lobe in the field-pipe-3d domain (h = 1 m, ppc 2) and one stray
     particle 5 m off the axis: at rest and uniform in frame 0; in frame 1 a 1 m wide lane on the
     axis (|y| < 0.5 m) at 1 Pa s and 1 m/s between banks at 1000 Pa s and 0.05 m/s."""
     from mpmjax import load_scene
 
-    cfg = load_scene("field-pipe-3d", ["domain.cell_size_m=1.0"])
+    cfg = load_scene("field-pipe-3d", ["domain.cell_size_m=1.0", *_THESIS_BOX])
     x = np.concatenate([_lattice(2.0, 12.0, -3.0, 3.0, 0.0, 2.0, 0.5), [[5.25, 5.25, 0.25]]])
     lane = np.abs(x[:, 1]) < 0.5
     v0 = np.zeros_like(x)
@@ -211,7 +215,7 @@ def test_3d_pictures_and_capped_animation_of_a_synthetic_run(tmp_path):
 
     from mpmjax import load_scene, plotting
 
-    cfg = load_scene("field-pipe-3d", ["domain.cell_size_m=1.0"])
+    cfg = load_scene("field-pipe-3d", ["domain.cell_size_m=1.0", *_THESIS_BOX])
     x = _lattice(2.0, 8.0, -2.0, 2.0, 0.0, 1.0, 0.5)
     v = np.zeros_like(x)
     mu = np.where(np.abs(x[:, 1]) < 0.5, 1.0, 100.0)
