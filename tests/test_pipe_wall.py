@@ -3,7 +3,9 @@ inlet (driven grid nodes, ``_step.pipe_nodes``) must not drag it.
 
 A pipe 2 cm wide on 4 cm cells shares its driven nodes with whatever lies beside or above it.
 That material is dragged at the pipe speed against its undriven neighbours and stretched
-(field-pipe-3d at its default h = 0.5 m fails at 155 s with J = 10 at the bed beside the pipe).
+(field-pipe-3d at h = 0.5 m, its default until 2026-11-27, fails at 155 s with J = 10 at the bed
+beside the pipe; the default is now h = 0.25 m, where the pipe spans about a cell and the run
+completes).
 A fix that gave such material the undriven grid velocity (commit 785f854) passed this test and
 completed field-pipe-3d, but broke flume-deposition (J = 10 above the pipe at 443 s: two velocity
 fields for neighbouring particles) and was reverted; this test records the open defect.
