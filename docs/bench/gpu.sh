@@ -9,12 +9,9 @@
 #                           the taichi and dill wheels for this python)
 #   5. run_*.json       wall time and summary of `mpmjax run` on dambreak-lab and field-dambreak-3d
 # usage: OUT=dir bash docs/bench/gpu.sh
-set -uo pipefail
 cd "$(dirname "$0")/../.."
-OUT="${OUT:-/tmp/gpu_out}"
-mkdir -p "$OUT"
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 MPLBACKEND=Agg
-py="${PYTHON:-python3}"
+# shellcheck source=docs/bench/gpu_env.sh
+source docs/bench/gpu_env.sh
 mj() { "$py" -c 'import sys; from mpmjax.cli import main; sys.exit(main(sys.argv[1:]))' "$@"; }
 
 {

@@ -4,14 +4,12 @@
 #   the thin flume deposit at h = 2 cm after 300 s (docs/bench/thin_deposit.py), and the lab dam break
 #   at h = 2.5 mm with the cap (against the float64 reference runout of `mpmjax pareto`).
 # Each run appends one JSON line to $OUT/results.jsonl as it ends; logs go to $OUT/log.txt.
-# Part "refine": field-pipe-3d in its current (cropped 40 m x 25 m) box at h = 0.25 and 0.125 m, no cap.
+# Part "refine": field-pipe-3d in the scene's own box at h = 0.25 and 0.125 m, no cap (recorded when that box
+# was 40 m x 25 m; it is now 40 m x 24 m, whose nodes coincide with it: docs/scenarios.md).
 # usage: OUT=dir bash docs/bench/gpu_pipe.sh [all|refine]
-set -uo pipefail
 cd "$(dirname "$0")/../.."
-OUT="${OUT:-/tmp/gpu_out}"
-mkdir -p "$OUT"
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 MPLBACKEND=Agg
-py="${PYTHON:-python3}"
+# shellcheck source=docs/bench/gpu_env.sh
+source docs/bench/gpu_env.sh
 log="$OUT/log.txt"
 
 run_scene() { # limit_s scene tag --set ... : `mpmjax run`, then one JSON line from its summary
