@@ -296,7 +296,6 @@ def _write_json(path, doc) -> None:
 
 
 def run_bench(args) -> int:
-
     from ._config import build, load_scene, validate
 
     if args.steps < 1:
@@ -326,7 +325,7 @@ def run_bench(args) -> int:
     for k, r in results.items():
         log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
     save()
-    sizes = [1e3] if quick else [1e3, 1e4, 1e5] + ([1e6] if large else [])
+    sizes = doc["meta"]["scaling_sizes"]
     # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
     combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
     scaling = doc["scaling"] = []
