@@ -17,6 +17,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from . import plotting  # imports matplotlib only when a plot is made
 from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params, validate
+from ._constitutive import tait_pressure
 from ._observables import runout
 from ._rheology import (
     Bingham,
@@ -30,7 +31,7 @@ from ._rheology import (
 )
 from ._scene import Gate, Params, Scene, State, Wall, init_state
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
-from ._step import make_p2g, make_step, tait_pressure
+from ._step import make_p2g, make_step
 
 try:
     __version__ = version("mpmjax")

@@ -13,7 +13,7 @@ The MPM step never branches on the model: it asks the model for
   the viscous time-step limit);
 
 and builds the Cauchy stress ``sigma = -p I + s`` itself, where ``s`` is the
-deviatoric stress from ``mu_eff`` (see ``_stress.py``).
+deviatoric stress from ``mu_eff`` (see ``_constitutive.deviatoric_update``).
 
 Shear measures (see ../shared/REFERENCE.md, thesis eqs. 3.8-3.9 and Annex 1):
 

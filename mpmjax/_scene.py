@@ -21,8 +21,6 @@ from . import _shapes
 
 WALL_KINDS = ("noslip", "slip", "symmetry")
 FACE_KINDS = WALL_KINDS + ("periodic", "open")
-# Tait-type EOS constant (thesis eq. 3.11, Macdonald 1969).
-TAIT_C = 0.0894
 
 
 @dataclasses.dataclass(frozen=True)

@@ -30,13 +30,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _shapes
-from ._scene import TAIT_C, Params, Scene, State
+from ._constitutive import deviatoric_update, shear_measures, shear_rate, tait_pressure
+from ._scene import Params, Scene, State
 
 
 # Small fixed-size contractions written as broadcast-multiply-sum: XLA:CPU lowers batched
 # einsum/matmul over tiny (dim x dim) matrices to slow per-batch dot calls, while these fuse
 # into the surrounding elementwise loops (measured: the P2G went from 629 to ~250 us per
-# step on the default scene).
+# step on the default scene).  The matrix product ``_mm`` is in ``_constitutive``.
 def _bmv(A, r):
     """(n, i, j) x (n, s, j) -> (n, s, i)."""
     d = A.shape[-1]
@@ -55,71 +56,6 @@ def _outer_sum(a, b):
         for i in range(a.shape[-1])
     ]
     return jnp.stack(rows, axis=1)
-
-
-def _mm(A, B):
-    """(n, i, k) x (n, k, j) -> (n, i, j)."""
-    d = A.shape[-1]
-    rows = [
-        jnp.stack([sum(A[:, i, k] * B[:, k, j] for k in range(d)) for j in range(B.shape[-1])], axis=-1)
-        for i in range(A.shape[1])
-    ]
-    return jnp.stack(rows, axis=1)
-
-
-def tait_pressure(J, kappa):
-    """Tait-type EOS p = C kappa [exp((1 - J)/C) - 1], C = 0.0894 (thesis eq. 3.11) [Pa]."""
-    return TAIT_C * kappa * jnp.expm1((1.0 - J) / TAIT_C)
-
-
-def shear_measures(L, dim):
-    """Deviatoric rate d' (n, dim, dim) and d':d' including the out-of-plane part in 2D.
-
-    d = sym(L); d' = d - tr(d)/3 I (3-D deviator; in plane strain d_zz = 0 so
-    d'_zz = -tr(d)/3 contributes to d':d').
-    """
-    d = 0.5 * (L + jnp.swapaxes(L, -1, -2))
-    tr = jnp.trace(d, axis1=-2, axis2=-1)
-    eye = jnp.eye(dim, dtype=L.dtype)
-    dprime = d - (tr / 3.0)[:, None, None] * eye[None]
-    dd = jnp.sum(dprime * dprime, axis=(-2, -1))
-    if dim == 2:
-        dd = dd + (tr / 3.0) ** 2
-    return dprime, dd
-
-
-def _safe_sqrt(x):
-    pos = x > 1e-30
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
-
-
-def shear_rate(dd, measure: str):
-    """Shear measure from d':d': ``standard`` sqrt(2 d':d') [1/s] or ``thesis`` d':d'/4."""
-    if measure == "standard":
-        return _safe_sqrt(2.0 * dd)
-    if measure == "thesis":
-        return 0.25 * dd
-    raise ValueError(f"shear_measure {measure!r}; allowed: 'standard', 'thesis'")
-
-
-def deviatoric_update(tau, L, dprime, mu, G, dt, method: str):
-    """Deviatoric stress update [Pa].
-
-    ``maxwell``: upper-convected-free (Jaumann) Maxwell element integrated exactly at
-    constant d' over dt:  tau <- tau* e^{-G dt/mu} + 2 mu d' (1 - e^{-G dt/mu}), with
-    tau* = tau + dt (W tau - tau W).  The step response is bounded by 2 G dt d', so the
-    step is stable at the wave-speed limit with c^2 = (kappa + 4G/3)/rho for any mu.
-    For mu << G dt it is the viscous law 2 mu d'; the lag is the relaxation time mu/G.
-    ``explicit``: tau = 2 mu d' (thesis eq. 3.1); stable only for dt < rho h^2 / (2 d mu).
-    """
-    if method == "explicit":
-        return 2.0 * mu[:, None, None] * dprime
-    W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
-    tau_rot = tau + dt * (_mm(W, tau) - _mm(tau, W))
-    x = G * dt / mu
-    decay = jnp.exp(-x)[:, None, None]
-    # 1 - e^{-x} via expm1: keeps the elastic limit 2 G dt d' exact in float32 for huge mu
-    return tau_rot * decay + 2.0 * (mu * -jnp.expm1(-x))[:, None, None] * dprime
 
 
 class _Stencil:

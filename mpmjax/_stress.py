@@ -128,7 +128,7 @@ CASE_NAMES = tuple(c.name for c in CASES)
 
 def tait_volume_ratio(p: float, kappa: float) -> float:
     """J at pressure p [Pa] of the Tait EOS p = C kappa (exp((1 - J)/C) - 1)."""
-    from ._scene import TAIT_C
+    from ._constitutive import TAIT_C
 
     return 1.0 - TAIT_C * math.log1p(p / (TAIT_C * kappa))
 

@@ -29,8 +29,8 @@ import numpy as np
 import pytest
 
 import mpmjax as m
+from mpmjax._constitutive import shear_measures, shear_rate
 from mpmjax._rheology import coussot_mu
-from mpmjax._step import shear_measures, shear_rate
 
 # --------------------------------------------------------------------------------------
 # Simple shear of Coussot material (REFERENCE.md "Coussot at constant shear rate")

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mpmjax._constitutive import deviatoric_update, shear_measures, shear_rate
 from mpmjax._rheology import (
     Bingham,
     BinghamParams,
@@ -22,7 +23,6 @@ from mpmjax._rheology import (
     coussot_lambda_exact,
     coussot_mu,
 )
-from mpmjax._step import deviatoric_update, shear_measures, shear_rate
 
 F64 = jnp.float64
 # Round-off tolerance for identities evaluated in float64 with a handful of
@@ -254,7 +254,7 @@ def test_herschel_bulkley_law_and_cap():
 
 
 # --------------------------------------------------------------------------------------
-# Maxwell deviatoric update (_step.deviatoric_update)
+# Maxwell deviatoric update (_constitutive.deviatoric_update)
 # --------------------------------------------------------------------------------------
 
 G_MOD = 1.5e4  # Maxwell modulus = thesis bulk modulus kappa (the default G)
