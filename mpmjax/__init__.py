@@ -31,7 +31,8 @@ from ._rheology import (
 )
 from ._scene import Gate, Params, Scene, State, Wall, init_state
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
-from ._step import make_p2g, make_step
+from ._step import make_step
+from ._transfer import make_p2g
 
 try:
     __version__ = version("mpmjax")

@@ -59,7 +59,8 @@ def shear_rate(dd, measure: str):
 
 
 # The batched matrix product of the Jaumann rotation, written as broadcast-multiply-sum like
-# the contraction helpers of ``_step`` (see there why); it lives here, with its only user.
+# the contraction helpers of ``_transfer`` (see there why).  It lives here, with its only user,
+# because ``_transfer`` imports ``tait_pressure`` from this module.
 def _mm(A, B):
     """(n, i, k) x (n, k, j) -> (n, i, j)."""
     d = A.shape[-1]

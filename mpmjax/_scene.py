@@ -161,7 +161,7 @@ class Scene:
       terrain: optional height-map boundary (``Terrain``).
       dtype: ``float32`` or ``float64``.
       grid_density_cap: 0 (off) or the tolerance of the grid volume check: J <= (1 + cap) / phi,
-        phi the grid-measured packing fraction at the particle (``_step``).
+        phi the grid-measured packing fraction at the particle (``_transfer.packing_fraction``).
     """
 
     dim: int

@@ -25,7 +25,7 @@ import pytest
 
 import mpmjax as m
 from mpmjax import _shapes
-from mpmjax._step import _Stencil
+from mpmjax._transfer import _Stencil
 
 jax.config.update("jax_enable_x64", True)
 

@@ -19,7 +19,8 @@ import pytest
 
 from mpmjax import _simulate
 from mpmjax._config import build, load_scene, validate
-from mpmjax._step import make_p2g, node_fill, packing_fraction
+from mpmjax._step import node_fill
+from mpmjax._transfer import make_p2g, packing_fraction
 
 
 def _box(shape: str, ppc: int, dim: int = 2):

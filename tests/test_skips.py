@@ -21,7 +21,8 @@ from mpmjax import _simulate, cli
 from mpmjax._config import build, load_scene, validate
 from mpmjax._io import read_checkpoint, read_result
 from mpmjax._simulate import StagedAdvance, capacity_schedule
-from mpmjax._step import _Stencil, make_step
+from mpmjax._step import make_step
+from mpmjax._transfer import _Stencil
 
 POUR = """
 name = "skips-pour"
