@@ -114,7 +114,7 @@ class Inflow:
     speed: Q / A [m/s]; offsets: positions in the cross-section relative to ``point`` [m];
     thickness: layer thickness speed * layer_dt [m]; half_width: half the pipe width
     (2D) or the pipe radius (3D) [m]; pipe_length: length of the pipe end behind the exit
-    whose grid nodes are driven at the pipe velocity [m] (see ``_step.pipe_nodes``).
+    whose grid nodes are driven at the pipe velocity [m] (see ``_boundary.pipe_nodes``).
     """
 
     point: tuple[float, ...]

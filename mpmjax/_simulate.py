@@ -104,7 +104,7 @@ def make_advance(scene: Scene):
 
 
 def layer_time(scene: Scene, k):
-    """Release time t_k = t_start + k layer_dt [s] of pool layer ``k``, computed as ``_step.make_release``
+    """Release time t_k = t_start + k layer_dt [s] of pool layer ``k``, computed as ``_boundary.make_release``
     does, in the scene's dtype."""
     inf = scene.inflow
     dt = np.dtype(scene.dtype).type

@@ -1,169 +1,42 @@
 """The MPM step: ``make_step(scene) -> step(state, params) -> state``.
 
-One explicit step (update-stress-last):
+One explicit step (update-stress-last); the modules named do the work, ``make_step``
+composes them:
 
-1. stress from the state: sigma = -p(J) I + tau, with the Tait EOS (thesis eq. 3.11);
-2. P2G: nodal mass, momentum (APIC affine or PIC/FLIP) and internal force
-   f_i = -sum_p V_p sigma_p grad w_ip; one scatter-add with all channels stacked;
-3. grid update with gravity and boundary conditions (walls as planes, periodic axes
-   by index wrapping);
-4. G2P: velocity (APIC or FLIP/PIC blend), affine matrix, velocity gradient,
-   position; particles pushed back out of walls (never silently clamped elsewhere);
-   particles whose stencil leaves the grid, or whose state is not finite, are
-   deactivated and counted in ``n_lost``;
-5. particle update: J <- J det(I + dt L) (with ``numerics.grid_density_cap``, then capped by the
-   grid-measured packing, see ``node_fill``); rheology (structure, viscosity);
-   deviatoric stress by the Maxwell exponential update or the explicit law.
-
-0. (pipe inflow only) pool particles whose layer time falls in this step are switched on;
-   in step 3 the grid nodes inside the pipe get the pipe velocity (``pipe_nodes``);
+0. (pipe inflow only) pool particles whose layer time falls in this step are switched on
+   (``_boundary.make_release``);
+1. stress from the state: sigma = -p(J) I + tau, with the Tait EOS (thesis eq. 3.11;
+   ``_constitutive.tait_pressure``);
+2. P2G (``_transfer.make_p2g``): nodal mass, momentum (APIC affine or PIC/FLIP) and internal
+   force f_i = -sum_p V_p sigma_p grad w_ip; one scatter-add with all channels stacked;
+3. grid update (here): v = p/m + dt (f/m + g) on the nodes that hold mass
+   (``EMPTY_NODE_FRACTION``), then the boundary conditions of ``_boundary``: walls as planes
+   (``apply_wall``), terrain (``terrain_velocity``), the pipe inlet's driven nodes
+   (``pipe_nodes``); periodic axes wrap the stencil index (``_transfer._Stencil``);
+4. G2P (``_transfer.make_g2p``): velocity (APIC or FLIP/PIC blend), affine matrix, velocity
+   gradient; then here the position, particles pushed back out of walls and terrain (never
+   silently clamped elsewhere) and wrapped on periodic axes;
+5. particle update (here, with ``_constitutive``): J <- J det(I + dt L) (with
+   ``numerics.grid_density_cap``, then capped by the grid-measured packing,
+   ``_transfer.packing_fraction`` with ``_boundary.node_fill``); rheology (structure,
+   viscosity: ``_rheology``); shear measures and deviatoric stress by the Maxwell exponential
+   update or the explicit law (``_constitutive.shear_measures``, ``deviatoric_update``);
+6. loss detection (here): particles whose stencil leaves the grid, or whose state is not
+   finite, are deactivated and counted in ``n_lost``.
 
 The same code runs in 2D (plane strain) and 3D.
 """
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import _shapes
+from ._boundary import _wall_masks, apply_wall, make_release, node_fill, pipe_nodes, terrain_velocity
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._scene import Params, Scene, State
 from ._transfer import make_g2p, make_p2g, packing_fraction
-
-
-def _wall_masks(scene: Scene):
-    """Static per-wall node masks (n_nodes,) and unit normals."""
-    xn = scene.node_positions()
-    out = []
-    for wall in scene.walls:
-        nrm = np.asarray(wall.normal, float)
-        nrm = nrm / np.linalg.norm(nrm)
-        phi = (xn - np.asarray(wall.point)) @ nrm
-        out.append((phi <= 1e-6 * scene.h, nrm, wall))
-    return out
-
-
-def apply_wall(v, nrm, kind):
-    """Velocity after a wall condition: ``noslip`` v=0; ``slip`` remove inward normal
-    velocity; ``symmetry`` remove all normal velocity.  ``nrm`` points into the fluid."""
-    n = jnp.asarray(nrm, v.dtype)
-    vn = v @ n
-    n = n[None, :]
-    if kind == "noslip":
-        return jnp.zeros_like(v)
-    if kind == "slip":
-        return v - jnp.minimum(vn, 0.0)[:, None] * n
-    if kind == "symmetry":
-        return v - vn[:, None] * n
-    raise ValueError(kind)
-
-
-def terrain_velocity(v, nrm, terrain):
-    """Nodal velocity after the terrain condition; ``nrm`` (N, dim) per-node unit normals."""
-    if terrain.kind == "noslip":
-        return jnp.zeros_like(v)
-    n = jnp.asarray(nrm, v.dtype)
-    vn = jnp.sum(v * n, axis=1)
-    inward = jnp.minimum(vn, 0.0)
-    v_s = v - inward[:, None] * n
-    if terrain.kind == "slip":
-        return v_s
-    # coulomb: tangential speed reduced by friction x |removed normal speed|, at most to zero
-    vt = v_s - jnp.sum(v_s * n, axis=1)[:, None] * n
-    speed = jnp.sqrt(jnp.sum(vt * vt, axis=1))
-    moving = speed > 0.0
-    scale = jnp.where(moving, jnp.maximum(0.0, 1.0 - terrain.friction * (-inward) / jnp.where(moving, speed, 1.0)), 0.0)
-    return v_s - (1.0 - scale)[:, None] * vt
-
-
-def make_release(scene: Scene):
-    """Returns ``release(state, params) -> state``: switches on the pipe-inflow layers due in
-    this step (see ``_scene.Inflow``); the identity without an inflow.
-
-    A pool particle is released in the step whose interval [t, t + dt) holds its layer
-    time; the windows of consecutive steps tile the time axis, so each layer is released
-    exactly once (as long as t + dt > t in the state's precision: use float64 for runs
-    whose t / dt exceeds ~1e6).  Released particles start at rest in stress (J = 1,
-    tau = 0, C = 0) with the rheology's initial internal state and, with an aging gate,
-    have not yet passed it (material in the pipe does not age).
-    """
-    inf = scene.inflow
-    if inf is None:
-        return lambda state, params: state
-    dt = scene.dt
-    n_per = inf.n_per_layer
-
-    def release(state: State, params: Params) -> State:
-        dtp = state.x.dtype
-        n = state.x.shape[0]
-        rel = jnp.arange(n, dtype=jnp.int32) - inf.first
-        in_pool = rel >= 0
-        rel = jnp.maximum(rel, 0)
-        k, j = rel // n_per, rel % n_per
-        t_k = inf.t_start + k.astype(dtp) * inf.layer_dt
-        due = in_pool & ~state.active & (t_k >= state.t) & (t_k < state.t + dt)
-        d = jnp.asarray(inf.direction, dtp)
-        back = 0.5 * inf.thickness + inf.speed * (t_k - state.t)
-        pos = jnp.asarray(inf.point, dtp)[None, :] + jnp.asarray(inf.offsets, dtp)[j] - back[:, None] * d[None, :]
-        dd = due[:, None]
-        dm = due[:, None, None]
-        init = scene.rheology.init_internal(params.material, n)
-        return state._replace(
-            x=jnp.where(dd, pos, state.x),
-            v=jnp.where(dd, inf.speed * d[None, :], state.v),
-            C=jnp.where(dm, 0.0, state.C),
-            tau=jnp.where(dm, 0.0, state.tau),
-            J=jnp.where(due, 1.0, state.J),
-            internal={key: jnp.where(due, jnp.asarray(init[key], dtp), a) for key, a in state.internal.items()},
-            active=state.active | due,
-            gate=state.gate & ~due if scene.gate is not None else state.gate,
-        )
-
-    return release
-
-
-def pipe_nodes(scene: Scene) -> np.ndarray:
-    """Grid nodes inside the pipe (bool, n_nodes): behind the exit plane by at most
-    ``inflow.pipe_length`` and within the cross-section (half-width max(width/2, h/2), so a
-    pipe narrower than a cell still holds one row of nodes).  While the inflow runs these
-    nodes move at the pipe velocity (a velocity inlet that pushes the released layers out
-    against the material ahead); before and after it they are held at rest (a closed pipe).
-    """
-    inf = scene.inflow
-    xn = scene.node_positions() - np.asarray(inf.point)[None, :]
-    d = np.asarray(inf.direction)
-    along = xn @ d
-    lateral = np.linalg.norm(xn - along[:, None] * d[None, :], axis=1)
-    tol = 1e-9 * scene.h
-    half = max(inf.half_width, 0.5 * scene.h)
-    return (along <= tol) & (along >= -inf.pipe_length - tol) & (lateral <= half + tol)
-
-
-def node_fill(scene: Scene) -> np.ndarray:
-    """Per node, the packing fraction phi it would measure with the whole domain filled at the
-    seeding lattice (spacing 2 lp_cells cells, half a spacing off each wall): 1 in the interior,
-    less where the kernel reaches through a wall.  phi = (1 - sum over the lattice sites beyond
-    each wall of N(site - node) * spacing), multiplied over the walls (exact for box walls on
-    different axes; inclined planes and terrain are not counted, so there phi is low and the
-    grid volume check does not act).
-    """
-    xn = scene.node_positions()
-    sp = 2.0 * scene.lp_cells
-    reach = _shapes.SUPPORT[scene.shape] + 1.0
-    s_k = (np.arange(int(np.ceil(reach / sp)) + 1) + 0.5) * sp  # sites beyond the wall, cells
-    fill = np.ones(len(xn))
-    for wall in scene.walls:
-        nrm = np.asarray(wall.normal, float)
-        nrm = nrm / np.linalg.norm(nrm)
-        d = (xn - np.asarray(wall.point)) @ nrm / scene.h  # cells, positive inside
-        r = -s_k[None, :] - d[:, None]  # site minus node
-        with jax.ensure_compile_time_eval():  # a constant, also when make_step runs under a trace
-            missing = np.asarray(_shapes.kernel_1d(scene.shape, jnp.asarray(r), scene.lp_cells)).sum(axis=1) * sp
-        fill = fill * np.clip(1.0 - missing, 0.0, 1.0)
-    return fill
-
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
 EMPTY_NODE_FRACTION = 1e-9

@@ -10,7 +10,7 @@
 * G2P (``make_g2p``): particle velocity (APIC or FLIP/PIC blend), affine matrix C and
   velocity gradient L from the nodal velocities.
 * ``packing_fraction``: the grid-measured packing at each particle (the grid volume check,
-  ``numerics.grid_density_cap``), with the wall correction ``_step.node_fill``.
+  ``numerics.grid_density_cap``), with the wall correction ``_boundary.node_fill``.
 
 Nodes are numbered flat in C order over ``scene.grid_shape``; node i sits at
 ``grid_origin + index * h``.  Per-particle arrays have the leading axis n, stencil arrays
@@ -157,7 +157,7 @@ def packing_fraction(scene: Scene, mass, st, rho, fill):
 
     Nodal phi_i = m_i / (rho h^d) (with m = rho V0 per particle: reference volume per node
     volume), interpolated to the particle with its own weights and divided by the same
-    interpolation of ``fill`` (``_step.node_fill``), so that a domain filled at the seeding
+    interpolation of ``fill`` (``_boundary.node_fill``), so that a domain filled at the seeding
     lattice gives exactly 1 at every particle, walls included, and 1/J where it is uniformly strained.
     """
     dtp = mass.dtype

@@ -1,5 +1,5 @@
 """Material beside a pipe narrower than a cell is outside the pipe wall: the pipe's velocity
-inlet (driven grid nodes, ``_step.pipe_nodes``) must not drag it.
+inlet (driven grid nodes, ``_boundary.pipe_nodes``) must not drag it.
 
 A pipe 2 cm wide on 4 cm cells shares its driven nodes with whatever lies beside or above it.
 That material is dragged at the pipe speed against its undriven neighbours and stretched

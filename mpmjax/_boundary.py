@@ -1,0 +1,160 @@
+"""Boundary conditions on the grid: walls, terrain, the pipe inlet, and the wall-corrected packing.
+
+* walls (``_scene.Wall``): planes whose normal points into the fluid; a node with
+  (x - point).normal <= 1e-6 h takes the wall's condition (``_wall_masks``, ``apply_wall``:
+  ``noslip``, ``slip`` or ``symmetry``).  The box faces of those kinds and the extra planes
+  are walls; periodic faces wrap the stencil index instead (``_transfer._Stencil``) and open
+  faces have no condition.
+* terrain (``_scene.Terrain``): a height map z_b; nodes with z <= z_b take ``noslip``,
+  ``slip`` or ``coulomb`` with the local normal (``terrain_velocity``).
+* pipe inlet (``_scene.Inflow``): ``make_release`` switches on the pool particles whose
+  layer time falls in the step; ``pipe_nodes`` are the nodes driven at the pipe velocity.
+* ``node_fill``: per node, the packing fraction a domain filled at the seeding lattice would
+  measure, less than 1 where the kernel reaches through a wall.  It is a property of the
+  walls (and of the kernel), used by the grid volume check (``_transfer.packing_fraction``).
+
+Node masks, normals and fills are static numpy arrays of length n_nodes computed once per
+scene (``scene.node_positions()``); velocities are nodal (N, dim) arrays [m/s].  Lengths [m],
+times [s]; the last axis is vertical.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _shapes
+from ._scene import Params, Scene, State
+
+
+def _wall_masks(scene: Scene):
+    """Static per-wall node masks (n_nodes,) and unit normals."""
+    xn = scene.node_positions()
+    out = []
+    for wall in scene.walls:
+        nrm = np.asarray(wall.normal, float)
+        nrm = nrm / np.linalg.norm(nrm)
+        phi = (xn - np.asarray(wall.point)) @ nrm
+        out.append((phi <= 1e-6 * scene.h, nrm, wall))
+    return out
+
+
+def apply_wall(v, nrm, kind):
+    """Velocity after a wall condition: ``noslip`` v=0; ``slip`` remove inward normal
+    velocity; ``symmetry`` remove all normal velocity.  ``nrm`` points into the fluid."""
+    n = jnp.asarray(nrm, v.dtype)
+    vn = v @ n
+    n = n[None, :]
+    if kind == "noslip":
+        return jnp.zeros_like(v)
+    if kind == "slip":
+        return v - jnp.minimum(vn, 0.0)[:, None] * n
+    if kind == "symmetry":
+        return v - vn[:, None] * n
+    raise ValueError(kind)
+
+
+def terrain_velocity(v, nrm, terrain):
+    """Nodal velocity after the terrain condition; ``nrm`` (N, dim) per-node unit normals."""
+    if terrain.kind == "noslip":
+        return jnp.zeros_like(v)
+    n = jnp.asarray(nrm, v.dtype)
+    vn = jnp.sum(v * n, axis=1)
+    inward = jnp.minimum(vn, 0.0)
+    v_s = v - inward[:, None] * n
+    if terrain.kind == "slip":
+        return v_s
+    # coulomb: tangential speed reduced by friction x |removed normal speed|, at most to zero
+    vt = v_s - jnp.sum(v_s * n, axis=1)[:, None] * n
+    speed = jnp.sqrt(jnp.sum(vt * vt, axis=1))
+    moving = speed > 0.0
+    scale = jnp.where(moving, jnp.maximum(0.0, 1.0 - terrain.friction * (-inward) / jnp.where(moving, speed, 1.0)), 0.0)
+    return v_s - (1.0 - scale)[:, None] * vt
+
+
+def make_release(scene: Scene):
+    """Returns ``release(state, params) -> state``: switches on the pipe-inflow layers due in
+    this step (see ``_scene.Inflow``); the identity without an inflow.
+
+    A pool particle is released in the step whose interval [t, t + dt) holds its layer
+    time; the windows of consecutive steps tile the time axis, so each layer is released
+    exactly once (as long as t + dt > t in the state's precision: use float64 for runs
+    whose t / dt exceeds ~1e6).  Released particles start at rest in stress (J = 1,
+    tau = 0, C = 0) with the rheology's initial internal state and, with an aging gate,
+    have not yet passed it (material in the pipe does not age).
+    """
+    inf = scene.inflow
+    if inf is None:
+        return lambda state, params: state
+    dt = scene.dt
+    n_per = inf.n_per_layer
+
+    def release(state: State, params: Params) -> State:
+        dtp = state.x.dtype
+        n = state.x.shape[0]
+        rel = jnp.arange(n, dtype=jnp.int32) - inf.first
+        in_pool = rel >= 0
+        rel = jnp.maximum(rel, 0)
+        k, j = rel // n_per, rel % n_per
+        t_k = inf.t_start + k.astype(dtp) * inf.layer_dt
+        due = in_pool & ~state.active & (t_k >= state.t) & (t_k < state.t + dt)
+        d = jnp.asarray(inf.direction, dtp)
+        back = 0.5 * inf.thickness + inf.speed * (t_k - state.t)
+        pos = jnp.asarray(inf.point, dtp)[None, :] + jnp.asarray(inf.offsets, dtp)[j] - back[:, None] * d[None, :]
+        dd = due[:, None]
+        dm = due[:, None, None]
+        init = scene.rheology.init_internal(params.material, n)
+        return state._replace(
+            x=jnp.where(dd, pos, state.x),
+            v=jnp.where(dd, inf.speed * d[None, :], state.v),
+            C=jnp.where(dm, 0.0, state.C),
+            tau=jnp.where(dm, 0.0, state.tau),
+            J=jnp.where(due, 1.0, state.J),
+            internal={key: jnp.where(due, jnp.asarray(init[key], dtp), a) for key, a in state.internal.items()},
+            active=state.active | due,
+            gate=state.gate & ~due if scene.gate is not None else state.gate,
+        )
+
+    return release
+
+
+def pipe_nodes(scene: Scene) -> np.ndarray:
+    """Grid nodes inside the pipe (bool, n_nodes): behind the exit plane by at most
+    ``inflow.pipe_length`` and within the cross-section (half-width max(width/2, h/2), so a
+    pipe narrower than a cell still holds one row of nodes).  While the inflow runs these
+    nodes move at the pipe velocity (a velocity inlet that pushes the released layers out
+    against the material ahead); before and after it they are held at rest (a closed pipe).
+    """
+    inf = scene.inflow
+    xn = scene.node_positions() - np.asarray(inf.point)[None, :]
+    d = np.asarray(inf.direction)
+    along = xn @ d
+    lateral = np.linalg.norm(xn - along[:, None] * d[None, :], axis=1)
+    tol = 1e-9 * scene.h
+    half = max(inf.half_width, 0.5 * scene.h)
+    return (along <= tol) & (along >= -inf.pipe_length - tol) & (lateral <= half + tol)
+
+
+def node_fill(scene: Scene) -> np.ndarray:
+    """Per node, the packing fraction phi it would measure with the whole domain filled at the
+    seeding lattice (spacing 2 lp_cells cells, half a spacing off each wall): 1 in the interior,
+    less where the kernel reaches through a wall.  phi = (1 - sum over the lattice sites beyond
+    each wall of N(site - node) * spacing), multiplied over the walls (exact for box walls on
+    different axes; inclined planes and terrain are not counted, so there phi is low and the
+    grid volume check does not act).
+    """
+    xn = scene.node_positions()
+    sp = 2.0 * scene.lp_cells
+    reach = _shapes.SUPPORT[scene.shape] + 1.0
+    s_k = (np.arange(int(np.ceil(reach / sp)) + 1) + 0.5) * sp  # sites beyond the wall, cells
+    fill = np.ones(len(xn))
+    for wall in scene.walls:
+        nrm = np.asarray(wall.normal, float)
+        nrm = nrm / np.linalg.norm(nrm)
+        d = (xn - np.asarray(wall.point)) @ nrm / scene.h  # cells, positive inside
+        r = -s_k[None, :] - d[:, None]  # site minus node
+        with jax.ensure_compile_time_eval():  # a constant, also when make_step runs under a trace
+            missing = np.asarray(_shapes.kernel_1d(scene.shape, jnp.asarray(r), scene.lp_cells)).sum(axis=1) * sp
+        fill = fill * np.clip(1.0 - missing, 0.0, 1.0)
+    return fill
