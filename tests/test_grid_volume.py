@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from mpmjax import _simulate
-from mpmjax._config import build, load_scene, validate
+from mpmjax import build, load_scene, validate
 from mpmjax._step import make_p2g, node_fill, packing_fraction
 
 
