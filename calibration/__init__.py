@@ -6,13 +6,15 @@
 * ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam, multi-start by ``vmap``.
 * ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability.
 * ``sweep`` (``calibration.sweep``): a parameter grid as one ``vmap`` batch, sharded over devices.
-* ``calibration.observables``: differentiable height profile, smooth front, deposited volume.
+* the differentiable observables (height profile, smooth front, deposited volume), re-exported
+  from ``mpmjax`` (``mpmjax._observables``), where the simulator's plots use them too.
 """
+
+from mpmjax import deposited_volume, gaussian_kernel, height_profile, particle_volume, smooth_front
 
 from .data import DataError, Profile, load_profiles, write_profiles_csv
 from .experiments import FlowCurveExperiment, ProfileExperiment, joint_loss
 from .fit import FitResult, fit
-from .observables import deposited_volume, gaussian_kernel, height_profile, particle_volume, smooth_front
 from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
 from .sweep import sweep
 from .uncertainty import Uncertainty, gauss_newton

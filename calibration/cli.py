@@ -13,6 +13,17 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+import mpmjax
+
+from .data import DataError, load_profiles
+from .experiments import FlowCurveExperiment, ProfileExperiment, frames_for
+from .fit import fit
+from .params import UNITS, ParameterSet
+from .sweep import FIELD_KEYS, parse_vary, sweep, write_sweep
+from .uncertainty import gauss_newton
+
 USAGE_ERROR = 2
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
 
@@ -89,24 +100,7 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 
-def _frames_for(times, t_end_default, n_frames_default):
-    """(t_end, n_frames) so that every data time is a frame time when possible."""
-    ts = [t for t in times if t is not None and t > 0]
-    if not ts:
-        return t_end_default, n_frames_default
-    t_end = max(ts)
-    for nf in range(1, 401):
-        dtf = t_end / nf
-        if all(abs(t / dtf - round(t / dtf)) < 1e-6 for t in ts):
-            return t_end, max(nf, min(n_frames_default, 10 * nf) // nf * nf)
-    return t_end, n_frames_default
-
-
 def _load_flow_curve(path):
-    import numpy as np
-
-    from .data import DataError
-
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path}: no such file")
@@ -123,18 +117,6 @@ def _load_flow_curve(path):
 
 def calibrate(args) -> dict:
     """Run a calibration from parsed arguments; returns the fit.json document."""
-    import numpy as np
-
-    import mpmjax
-    from mpmjax._io import atomic_write_text
-
-    from .data import load_profiles
-    from .experiments import FlowCurveExperiment, ProfileExperiment
-    from .fit import fit
-    from .params import UNITS, ParameterSet
-    from .sweep import FIELD_KEYS
-    from .uncertainty import gauss_newton
-
     out = Path(args.out)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     profiles = load_profiles(args.data)
@@ -145,7 +127,7 @@ def calibrate(args) -> dict:
     keys = {o.split("=", 1)[0].strip() for o in overrides}
     cfg0 = mpmjax.load_scene(args.scene, overrides)
     if not ({"time.t_end_s", "time.n_frames"} & keys):
-        t_end, nf = _frames_for([p.t_s for p in profiles], cfg0["time.t_end_s"], cfg0["time.n_frames"])
+        t_end, nf = frames_for([p.t_s for p in profiles], cfg0["time.t_end_s"], cfg0["time.n_frames"])
         overrides += [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]
     init = _kv(args.init, "--init")
     for k, v in init.items():
@@ -186,7 +168,7 @@ def calibrate(args) -> dict:
         if not args.quiet:
             vals = ", ".join(f"{k}={v:.4g}" for k, v in best.items())
             print(f"calibrate: iteration {it}/{max_iter} loss {float(np.min(losses)):.4e} {vals}", file=sys.stderr)
-        atomic_write_text(
+        mpmjax.atomic_write_text(
             out / "fit_progress.json",
             json.dumps({"iteration": it, "loss": float(np.min(losses)), "params": best, "complete": False}, indent=1),
         )
@@ -240,7 +222,7 @@ def calibrate(args) -> dict:
         "sigma_known": exps[0].sigma_known,
         "code_version": mpmjax.__version__,
     }
-    atomic_write_text(out / "fit.json", json.dumps(doc, indent=1))
+    mpmjax.atomic_write_text(out / "fit.json", json.dumps(doc, indent=1))
     (out / "fit_progress.json").unlink(missing_ok=True)
     _plots(out, exps[0], pset, res, profiles)
     log(
@@ -255,11 +237,11 @@ def calibrate(args) -> dict:
 
 
 def _plots(out, exp, pset, res, profiles):
+    # matplotlib only when plots are written (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     init = {k: pset.specs[k].init for k in pset.free}
     h_init = [np.asarray(h) for h in exp.model_profiles(pset.values(init))]
@@ -310,8 +292,6 @@ def add_sweep_arguments(p: argparse.ArgumentParser):
 
 
 def run_sweep(args) -> dict:
-    from .sweep import parse_vary, sweep, write_sweep
-
     vary = parse_vary(args.vary)
     res = sweep(args.scene, vary, overrides=args.set, chunk=args.chunk, progress=not args.quiet)
     paths = write_sweep(res, args.out)
@@ -336,13 +316,9 @@ def run_sweep(args) -> dict:
 
 
 def _guard(fn, args) -> int:
-    from mpmjax._config import SceneError
-
-    from .data import DataError
-
     try:
         fn(args)
-    except (SceneError, DataError, ValueError) as e:
+    except (mpmjax.SceneError, DataError, ValueError) as e:
         print(f"mpmjax: error: {e}", file=sys.stderr)
         return USAGE_ERROR
     except KeyboardInterrupt:

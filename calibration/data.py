@@ -31,7 +31,10 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import h5py
 import numpy as np
+
+import mpmjax
 
 __all__ = ["DataError", "Profile", "load_profiles", "write_profiles_csv"]
 
@@ -179,8 +182,6 @@ def _units_ok(src, name, ds):
 
 
 def _load_h5(path: Path) -> list[Profile]:
-    import h5py
-
     src = str(path)
     out = []
     with h5py.File(path, "r") as f:
@@ -280,6 +281,4 @@ def write_profiles_csv(path, profiles, header_comment: str = ""):
             if with_sigma:
                 row.append(f"{p.sigma_m[i]:.6g}")
             lines.append(",".join(row))
-    from mpmjax._io import atomic_write_text
-
-    atomic_write_text(path, "\n".join(lines) + "\n")
+    mpmjax.atomic_write_text(path, "\n".join(lines) + "\n")

@@ -14,7 +14,7 @@ so an experiment with many stations does not swamp one with a single runout.
 
 * :class:`ProfileExperiment`: an MPM scene (``mpmjax.build``) against measured height
   profiles at given times, and optionally a measured runout.  The model height is
-  ``calibration.observables.height_profile`` (Gaussian kernel of bandwidth b, default one
+  ``mpmjax.height_profile`` (Gaussian kernel of bandwidth b, default one
   cell) at the data stations, at the saved frame nearest to each data time (a data time
   more than half a frame interval from every frame is an error); the model runout is
   ``smooth_front``.  sigma: the data's ``sigma_m`` where given, else ``sigma_m`` of the
@@ -34,23 +34,13 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+import mpmjax
+from mpmjax import height_profile, restate, smooth_front
+from mpmjax.rheometer import steady_flow_curve
+
 from .data import Profile
-from .observables import height_profile, smooth_front
 
-__all__ = ["ProfileExperiment", "FlowCurveExperiment", "restate", "joint_loss", "joint_residuals"]
-
-
-def restate(state, scene, params):
-    """``state`` with the rheology's internal fields (e.g. the Coussot structure lambda =
-    lambda0) and the initial viscosity rebuilt from ``params``, so that parameters that
-    enter only through the initial state (lambda0) are traced.  Everything else (positions,
-    active mask, inflow pool) is kept."""
-    n = state.x.shape[0]
-    dt = state.x.dtype
-    internal = scene.rheology.init_internal(params.material, n)
-    internal = {k: jnp.asarray(a, dt) * jnp.ones((n,), dt) for k, a in internal.items()}
-    mu = scene.rheology.viscosity(params.material, jnp.zeros((n,), dt), internal, 0.0, False)[0]
-    return state._replace(internal=internal, mu=jnp.asarray(mu, dt) * jnp.ones((n,), dt))
+__all__ = ["ProfileExperiment", "FlowCurveExperiment", "joint_loss", "joint_residuals"]
 
 
 class ProfileExperiment:
@@ -80,8 +70,6 @@ class ProfileExperiment:
         weight: float = 1.0,
         name: str = "profiles",
     ):
-        import mpmjax
-
         if not profiles and runout_m is None:
             raise ValueError(f"{name}: no profile and no runout to compare with")
         self.setup, self.name, self.weight = setup, name, float(weight)
@@ -135,7 +123,6 @@ class ProfileExperiment:
             raise ValueError(f"{name}: front_threshold_m = {front_threshold_m}; allowed range: > 0 [m]")
         self.n_frames_needed = max(idx + [sc.n_frames if self.runout_m is not None else 0]) or 1
         self.n_residuals = sum(int(p.x_m.size) for p in self.profiles) + (self.runout_m is not None)
-        self._mpm = mpmjax
 
     # -- model -----------------------------------------------------------------------
     def material(self, values: dict):
@@ -152,7 +139,7 @@ class ProfileExperiment:
         s = self.setup
         p = s.params._replace(material=self.material(values))
         st = restate(s.state, s.scene, p)
-        _, fr = self._mpm.simulate(s.scene, st, p, self.n_frames_needed)
+        _, fr = mpmjax.simulate(s.scene, st, p, self.n_frames_needed)
         return st, fr
 
     def _at(self, st, fr, k):
@@ -224,12 +211,23 @@ class FlowCurveExperiment:
         self.n_residuals = g.size
 
     def residuals(self, values: dict):
-        from mpmjax.rheometer import steady_flow_curve
-
         dt = jnp.result_type(self.base.mu0)
         mat = self.base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items() if k in type(self.base)._fields})
         tau, _ = steady_flow_curve(mat, self._g)
         return (jnp.log(tau) - self._lt) / self.sigma_ln
+
+
+def frames_for(times, t_end_default, n_frames_default):
+    """(t_end, n_frames) so that every data time is a frame time when possible."""
+    ts = [t for t in times if t is not None and t > 0]
+    if not ts:
+        return t_end_default, n_frames_default
+    t_end = max(ts)
+    for nf in range(1, 401):
+        dtf = t_end / nf
+        if all(abs(t / dtf - round(t / dtf)) < 1e-6 for t in ts):
+            return t_end, max(nf, min(n_frames_default, 10 * nf) // nf * nf)
+    return t_end, n_frames_default
 
 
 def joint_residuals(experiments, values: dict):

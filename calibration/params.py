@@ -23,56 +23,63 @@ is not part of z.
 Parameter names are the fields of the scene's material NamedTuple (``mpmjax``'s
 ``CoussotParams``: mu0, alpha, T, n, lambda0, mu_max, rho, kappa; ``BinghamParams``: mu,
 tau_y, alpha_b, m; ``HerschelBulkleyParams``: tau_y, K, n_hb, m, mu_max;
-``NewtonianParams``: mu).  :data:`DEFAULT_BOUNDS` gives bounds that contain every value
-in the thesis and the literature it cites, with margin; a value outside its bounds is an
-error, not a silent clip.
+``NewtonianParams``: mu; or any registered law's).  :data:`DEFAULT_BOUNDS` gives bounds that
+contain every value in the thesis and the literature it cites, with margin; a value outside
+its bounds is an error, not a silent clip.  Bounds, units and scene keys are read from each
+law's parameter declarations (``mpmjax.material_parameters()``), not listed here.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 
-__all__ = ["DEFAULT_BOUNDS", "UNITS", "ParamSpec", "ParameterSet"]
+import mpmjax
+
+__all__ = ["DEFAULT_BOUNDS", "SCENE_KEYS", "UNITS", "ParamSpec", "ParameterSet"]
 
 TRANSFORMS = ("log", "softplus", "linear", "identity")
 
-# name: (lo, hi) [SI]; wide, physically plausible ranges (thesis values lie well inside)
-DEFAULT_BOUNDS = {
-    "mu0": (1e-3, 1e4),
-    "alpha": (1e-4, 1e3),
-    "T": (1e-3, 1e6),
-    "n": (0.05, 20.0),
-    "lambda0": (1e-4, 1e4),
-    "mu_max": (1e-2, 1e8),
-    "mu": (1e-4, 1e6),
-    "tau_y": (1e-3, 1e6),
-    "K": (1e-4, 1e6),
-    "n_hb": (0.05, 5.0),
-    "alpha_b": (1.0, 1e6),
-    "m": (1e-3, 1e5),
-    "rho": (100.0, 2e4),
-    "kappa": (1.0, 1e12),
-}
-UNITS = {
-    "mu0": "Pa s",
-    "alpha": "-",
-    "T": "s",
-    "n": "-",
-    "lambda0": "-",
-    "mu_max": "Pa s",
-    "mu": "Pa s",
-    "tau_y": "Pa",
-    "K": "Pa s^n_hb",
-    "n_hb": "-",
-    "alpha_b": "-",
-    "m": "s",
-    "rho": "kg/m^3",
-    "kappa": "Pa",
-}
+class _Declared(Mapping):
+    """name -> one field of each material parameter's declaration (``mpmjax.material_parameters()``:
+    the law's ``Param``), read live, so a law registered later is included.  Parameters whose
+    field is None (no calibration bounds) are left out."""
+
+    def __init__(self, field: str):
+        self._field = field
+
+    def _table(self) -> dict:
+        out = {}
+        for name, p in mpmjax.material_parameters().items():
+            v = getattr(p, self._field)
+            if v is not None:
+                out[name] = v
+        return out
+
+    def __getitem__(self, name):
+        return self._table()[name]
+
+    def __iter__(self):
+        return iter(self._table())
+
+    def __len__(self):
+        return len(self._table())
+
+    def __repr__(self):
+        return f"{type(self).__name__}({self._field!r}: {self._table()!r})"
+
+
+# name -> (lo, hi) [SI]: wide, physically plausible ranges (thesis values lie well inside), declared
+# with each parameter (``mpmjax.Param.bounds``)
+DEFAULT_BOUNDS = _Declared("bounds")
+# name -> SI unit (``mpmjax.Param.unit``)
+UNITS = _Declared("unit")
+# name -> scene key (``mpmjax.Param.key``)
+SCENE_KEYS = _Declared("key")
 
 
 @dataclass(frozen=True)

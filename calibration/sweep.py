@@ -10,7 +10,7 @@ compilation); with several devices the batch axis is sharded across them with
 * ``runout_m`` (per saved frame) and ``final_runout_m``: ``mpmjax.runout`` (the farthest
   active particle plus half a particle spacing, minus the scene's runout origin) [m];
 * ``kinetic_energy_J`` per frame [J; 2D: J per metre of depth] and ``time_to_rest_s``
-  (``mpmjax._metrics.time_to_rest``; NaN if the material has not come to rest);
+  (``mpmjax.time_to_rest``; NaN if the material has not come to rest);
 * ``n_lost`` particles and the final height profile on ``profile_x_m``.
 
 Only material parameters can vary inside a batch (the scene's grid, time step and
@@ -22,6 +22,7 @@ errors), and the batch uses one time step: the smallest stable step over the cas
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import os
 import sys
@@ -31,29 +32,16 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from .experiments import restate
-from .observables import height_profile
+import mpmjax
+
+from .params import SCENE_KEYS
 
 __all__ = ["FIELD_KEYS", "parse_vary", "sweep", "write_sweep"]
 
-# material field -> scene key (SI units in the key's name)
-FIELD_KEYS = {
-    "rho": "material.density_kg_m3",
-    "kappa": "material.bulk_modulus_pa",
-    "mu": "material.viscosity_pa_s",
-    "tau_y": "material.yield_stress_pa",
-    "alpha_b": "material.alpha_b",
-    "m": "material.papanastasiou_m_s",
-    "K": "material.consistency_pa_sn",
-    "n_hb": "material.flow_index",
-    "mu_max": "material.mu_max_pa_s",
-    "mu0": "material.mu0_pa_s",
-    "alpha": "material.alpha",
-    "T": "material.T_s",
-    "n": "material.n",
-    "lambda0": "material.lambda0",
-}
+# material field -> scene key (SI units in the key's name), from the laws' declarations
+FIELD_KEYS = SCENE_KEYS
 
 
 def parse_vary(items) -> dict:
@@ -107,10 +95,6 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
     ``kinetic_energy_J``, ``profile_h_m``), ``times_s``, ``profile_x_m``, ``dt_s``, ``chunk``,
     ``n_devices`` and ``wall_s``.  Raises ``SceneError`` (from ``mpmjax``) for invalid
     values, ``ValueError`` for names that are not material parameters of the scene."""
-    import mpmjax
-    from mpmjax._config import time_step_limits
-    from mpmjax._metrics import kinetic_energy, time_to_rest
-
     overrides = list(overrides or [])
     cfg = mpmjax.load_scene(scene, overrides)
     setup = mpmjax.build(cfg)
@@ -128,7 +112,7 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
         ov = overrides + [f"{FIELD_KEYS[k]}={v!r}" for k, v in c.items()]
         ci = mpmjax.load_scene(scene, ov)
         pi = mpmjax.make_params(ci, setup.scene.dim, setup.scene.dtype)
-        lim = time_step_limits(ci, pi, np.asarray(setup.state.x), np.asarray(setup.state.v), setup.scene.rheology)
+        lim = mpmjax.time_step_limits(ci, pi, np.asarray(setup.state.x), np.asarray(setup.state.v), setup.scene.rheology)
         limits.append(lim["dt_limit_s"])
     if min(limits) < setup.scene.dt * (1 - 1e-9):
         setup = mpmjax.build(mpmjax.load_scene(scene, overrides + [f"numerics.dt_s={min(limits)!r}"]))
@@ -141,14 +125,14 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
 
     def one(mat):
         p = params._replace(material=mat)
-        st = restate(state0, sc, p)
+        st = mpmjax.restate(state0, sc, p)
         final, fr = mpmjax.simulate(sc, st, p)
         xs = jnp.concatenate([st.x[None], fr.x])
         vs = jnp.concatenate([st.v[None], fr.v])
         act = jnp.concatenate([st.active[None], fr.active])
         fronts = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
-        ke = kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
-        prof = height_profile(final.x, st.vol0, final.active, xg, bandwidth=sc.h) if sc.dim == 2 else jnp.zeros_like(xg)
+        ke = mpmjax.kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
+        prof = mpmjax.height_profile(final.x, st.vol0, final.active, xg, bandwidth=sc.h) if sc.dim == 2 else jnp.zeros_like(xg)
         return fronts, ke, final.n_lost, prof
 
     n_dev = jax.device_count()
@@ -161,8 +145,6 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
     batched = jax.jit(jax.vmap(one))
     sharding = None
     if n_dev > 1:
-        from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
         sharding = NamedSharding(Mesh(np.array(jax.devices()), ("batch",)), PartitionSpec("batch"))
     mat0 = params.material
     cols = {k: np.asarray([c[k] for c in cases], float) for k in vary}
@@ -190,7 +172,7 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
     wall = time.perf_counter() - t0
     fronts, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(4))
     times = np.arange(sc.n_frames + 1) * sc.steps_per_frame * sc.dt
-    rest = np.asarray([time_to_rest(times, k) for k in ke])
+    rest = np.asarray([mpmjax.time_to_rest(times, k) for k in ke])
     return {
         "scene": cfg["name"],
         "overrides": overrides,
@@ -219,14 +201,11 @@ def write_sweep(res: dict, out) -> list[Path]:
     [s], lost particles), ``sweep.json`` (everything, with per-frame series) and plots
     (``sweep_runout.png``: final runout against each varied parameter; ``sweep_profiles.png``:
     final height profiles) to the folder ``out``.  Returns the paths."""
-    import json
-
+    # matplotlib only when plots are written (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from mpmjax._io import atomic_write_text
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -240,7 +219,7 @@ def write_sweep(res: dict, out) -> list[Path]:
                 + [f"{res['final_runout_m'][i]:.6g}", f"{res['time_to_rest_s'][i]:.6g}", str(int(res["n_lost"][i]))]
             )
         )
-    atomic_write_text(out / "sweep.csv", "\n".join(lines) + "\n")
+    mpmjax.atomic_write_text(out / "sweep.csv", "\n".join(lines) + "\n")
 
     def js(v):
         if isinstance(v, np.ndarray):
@@ -267,7 +246,7 @@ def write_sweep(res: dict, out) -> list[Path]:
         "dt_s": "s",
         "wall_s": "s",
     }
-    atomic_write_text(out / "sweep.json", json.dumps(doc, indent=1))
+    mpmjax.atomic_write_text(out / "sweep.json", json.dumps(doc, indent=1))
     del units
     paths = [out / "sweep.csv", out / "sweep.json"]
     fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)

@@ -12,7 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+import mpmjax
+
 from .data import Profile, write_profiles_csv
+from .experiments import ProfileExperiment, frames_for
 
 __all__ = ["synthetic_profiles", "DATASETS", "main"]
 
@@ -23,13 +26,8 @@ def synthetic_profiles(scene, overrides, times_s, x_m, *, sigma_m: float, seed: 
     the kernel height profile (bandwidth ``bandwidth_m``, default one cell) plus
     independent Gaussian noise of standard deviation ``sigma_m`` [m], clipped at h >= 0.
     Returns (profiles, setup) with ``sigma_m`` recorded in each profile."""
-    import mpmjax
-
-    from .cli import _frames_for
-    from .experiments import ProfileExperiment
-
     cfg0 = mpmjax.load_scene(scene, overrides)
-    t_end, nf = _frames_for(list(times_s), cfg0["time.t_end_s"], cfg0["time.n_frames"])
+    t_end, nf = frames_for(list(times_s), cfg0["time.t_end_s"], cfg0["time.n_frames"])
     setup = mpmjax.build(mpmjax.load_scene(scene, list(overrides) + [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]))
     x = np.asarray(x_m, float)
     dummy = [Profile(x, np.ones_like(x), float(t)) for t in times_s]

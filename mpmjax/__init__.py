@@ -7,8 +7,14 @@ Public API (modules are private; names are re-exported here):
 * the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``
 * time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
-  parameter NamedTuples
-* observables: ``runout``
+  parameter NamedTuples; adding a law: ``Law``, ``Param``, ``Option``, ``Internal``,
+  ``register_law``, ``unregister_law``; ``material_parameters()`` (name -> ``Param``: scene
+  key, unit, default, range, calibration bounds), ``law_of(params)``
+* time step: ``time_step_limits``
+* observables: ``runout``; differentiable ``height_profile``, ``smooth_front``,
+  ``deposited_volume``, ``particle_volume``, ``gaussian_kernel``; metrics ``kinetic_energy``,
+  ``time_to_rest``
+* files: ``atomic_write_text``
 * plots of a saved run: the ``plotting`` module (``particles``, ``profiles``,
   ``runout_vs_time``, ``animate``)
 """
@@ -16,9 +22,11 @@ Public API (modules are private; names are re-exported here):
 from importlib.metadata import PackageNotFoundError, version
 
 from . import plotting  # imports matplotlib only when a plot is made
-from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params, validate
+from ._build import Setup, build, make_params, time_step_limits
 from ._constitutive import tait_pressure
-from ._observables import runout
+from ._io import atomic_write_text
+from ._metrics import kinetic_energy, time_to_rest
+from ._observables import deposited_volume, gaussian_kernel, height_profile, particle_volume, runout, smooth_front
 from ._rheology import (
     Bingham,
     BinghamParams,
@@ -26,10 +34,17 @@ from ._rheology import (
     CoussotParams,
     HerschelBulkley,
     HerschelBulkleyParams,
+    Internal,
+    Law,
     Newtonian,
     NewtonianParams,
+    Option,
+    Param,
+    law_of,
 )
-from ._scene import Gate, Params, Scene, State, Wall, init_state
+from ._rheology import parameters as material_parameters
+from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
+from ._scene import Gate, Params, Scene, State, Wall, init_state, restate
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
 from ._step import make_step
 from ._transfer import make_p2g
@@ -48,7 +63,24 @@ __all__ = [
     "builtin_scenes",
     "load_scene",
     "make_params",
+    "time_step_limits",
+    "register_law",
+    "unregister_law",
+    "Law",
+    "Param",
+    "Option",
+    "Internal",
+    "law_of",
+    "material_parameters",
     "runout",
+    "height_profile",
+    "smooth_front",
+    "deposited_volume",
+    "particle_volume",
+    "gaussian_kernel",
+    "kinetic_energy",
+    "time_to_rest",
+    "atomic_write_text",
     "Bingham",
     "BinghamParams",
     "Coussot",
@@ -63,6 +95,7 @@ __all__ = [
     "State",
     "Wall",
     "init_state",
+    "restate",
     "Frame",
     "make_advance",
     "make_chunk",

@@ -76,7 +76,8 @@ def _measure(setup, steps: int, reps: int = 3) -> dict:
 
 def _fluid(dim: int, n_target: int, dtype: str):
     """The mpm88 fluid as a block filling [0, 0.5]^dim of the unit box, about n_target particles."""
-    from ._config import build, validate
+    from ._schema import validate
+    from ._build import build
 
     k = max(4, 2 * round(n_target ** (1.0 / dim) / 2))  # even: the block edge 0.5 is a whole cell count
     raw = json.loads(json.dumps(MPM88))
@@ -134,7 +135,8 @@ def _mem(compiled) -> dict:
 
 
 def _default_setup(dtype: str, coarse: bool):
-    from ._config import build, load_scene
+    from ._schema import load_scene
+    from ._build import build
 
     ov = {"numerics.dtype": dtype}
     if coarse:
@@ -296,7 +298,8 @@ def _write_json(path, doc) -> None:
 
 
 def run_bench(args) -> int:
-    from ._config import build, load_scene, validate
+    from ._schema import load_scene, validate
+    from ._build import build
 
     if args.steps < 1:
         raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")

@@ -37,14 +37,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-INTERNAL_NAMES = {"lam": "lambda"}
 UNITS = {
     "t_s": "s",
     "x_m": "m",
     "v_m_s": "m/s",
     "J": "-",
     "mu_pa_s": "Pa s",
-    "lambda": "-",
     "active": "bool",
     "vol0_m3": "m^3 (2D: m^2 per metre of depth)",
     "mass_kg": "kg (2D: kg per metre of depth)",
@@ -92,6 +90,17 @@ def params_dict(params) -> dict:
     return d
 
 
+def internal_datasets(rheology) -> dict[str, tuple[str, str]]:
+    """The law's internal variables: state name -> (dataset name in ``/frames``, unit), from
+    its ``Internal`` declarations (Coussot: ``lam`` -> ``lambda``, dimensionless)."""
+    return {i.name: (i.label, i.unit) for i in rheology.internals}
+
+
+def units_of(rheology) -> dict[str, str]:
+    """Unit of every dataset of a result of this law (``units_json``)."""
+    return {**UNITS, **{label: unit for label, unit in internal_datasets(rheology).values()}}
+
+
 class FrameWriter:
     """Appends frames to ``result.h5``; usable as a context manager."""
 
@@ -114,7 +123,7 @@ class FrameWriter:
         a["dt_s"] = s.scene.dt
         a["n_particles"] = s.scene.n_particles
         a["n_frames_planned"] = s.scene.n_frames + 1
-        a["units_json"] = json.dumps(UNITS)
+        a["units_json"] = json.dumps(units_of(s.scene.rheology))
         a["complete"] = False
         st = s.state
         p = self.f.create_group("particles")
@@ -123,8 +132,9 @@ class FrameWriter:
         self.g = self.f.create_group("frames")
         n, dim = s.scene.n_particles, s.scene.dim
         self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
+        self.internal = {k: lab for k, (lab, _) in internal_datasets(s.scene.rheology).items()}
         for k in st.internal:
-            self.fields[INTERNAL_NAMES.get(k, k)] = (n,)
+            self.fields[self.internal[k]] = (n,)
         self.g.create_dataset("t_s", shape=(0,), maxshape=(None,), dtype="f8")
         for name, shp in self.fields.items():
             dt = "u1" if name == "active" else "f4"
@@ -144,8 +154,9 @@ class FrameWriter:
         self.g = self.f["frames"]
         n, dim = setup.scene.n_particles, setup.scene.dim
         self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
+        self.internal = {k: lab for k, (lab, _) in internal_datasets(setup.scene.rheology).items()}
         for k in setup.state.internal:
-            self.fields[INTERNAL_NAMES.get(k, k)] = (n,)
+            self.fields[self.internal[k]] = (n,)
         have = min(self.g[name].shape[0] for name in ("t_s", *self.fields))
         if have < keep_frames:
             self.f.close()
@@ -163,7 +174,7 @@ class FrameWriter:
     def append(self, state):
         vals = {"x_m": state.x, "v_m_s": state.v, "J": state.J, "mu_pa_s": state.mu, "active": state.active}
         for k, arr in state.internal.items():
-            vals[INTERNAL_NAMES.get(k, k)] = arr
+            vals[self.internal[k]] = arr
         for name in self.fields:
             ds = self.g[name]
             ds.resize((self.n + 1,) + ds.shape[1:])

@@ -162,7 +162,8 @@ def run_case(overrides: dict, t_end: float, n_frames: int, edges) -> dict:
     """One run in this process: timings, runout [m], filled profile [m] on ``edges``, status."""
     import jax
 
-    from ._config import SceneError, build, load_scene
+    from ._schema import SceneError, load_scene
+    from ._build import build
     from ._observables import runout
     from ._simulate import simulate
 

@@ -198,7 +198,7 @@ def _run_info(s: dict) -> dict:
 def record(name: str, size: str, out: Path, log=lambda *a: None, progress: bool = False) -> tuple[list[dict], dict]:
     """Run record ``name`` at ``size`` ('ci' or 'full') under ``out/name``; returns (rows, runs).
     ``progress``: show each run's progress bar (stderr)."""
-    from ._config import load_scene
+    from ._schema import load_scene
 
     if name == "scale-study":
         return _scale_study(size, out / name, log, progress)
@@ -473,7 +473,7 @@ def add_arguments(p):
 
 
 def cmd_records(args) -> int:
-    from ._config import SceneError
+    from ._schema import SceneError
     from ._health import RunFailure
     from .cli import FAILED, _fail
 

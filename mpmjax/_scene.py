@@ -253,6 +253,25 @@ class State(NamedTuple):
     n_lost: jnp.ndarray
 
 
+def _fresh_material(scene: Scene, params: Params, n: int, dt):
+    """The rheology's initial internal fields (e.g. lambda = lambda0) and the viscosity at rest
+    of ``n`` fresh particles, in the dtype ``dt``."""
+    internal = scene.rheology.init_internal(params.material, n)
+    internal = {k: jnp.asarray(a, dt) for k, a in internal.items()}
+    mu0 = scene.rheology.viscosity(params.material, jnp.zeros((n,), dt), internal, 0.0, False)[0]
+    return internal, mu0
+
+
+def restate(state: State, scene: Scene, params: Params) -> State:
+    """``state`` with the rheology's internal fields and the viscosity rebuilt from ``params``
+    as ``init_state`` makes them, so that parameters that enter only through the initial
+    state (lambda0) are traced.  Everything else (positions, active mask, inflow pool) is kept."""
+    n = state.x.shape[0]
+    dt = state.x.dtype
+    internal, mu0 = _fresh_material(scene, params, n, dt)
+    return state._replace(internal=internal, mu=jnp.asarray(mu0, dt))
+
+
 def init_state(scene: Scene, params: Params, x, vol0, v=None, active=None) -> State:
     """A state at rest (J = 1, zero stress) from particle positions and volumes."""
     dt = jnp.dtype(scene.dtype)
@@ -262,9 +281,7 @@ def init_state(scene: Scene, params: Params, x, vol0, v=None, active=None) -> St
         raise ValueError(f"positions have shape {x.shape}; the scene expects ({scene.n_particles}, {scene.dim})")
     v = jnp.zeros_like(x) if v is None else jnp.asarray(v, dt)
     active = jnp.ones((n,), bool) if active is None else jnp.asarray(active, bool)
-    internal = scene.rheology.init_internal(params.material, n)
-    internal = {k: jnp.asarray(a, dt) for k, a in internal.items()}
-    mu0 = scene.rheology.viscosity(params.material, jnp.zeros((n,), dt), internal, 0.0, False)[0]
+    internal, mu0 = _fresh_material(scene, params, n, dt)
     return State(
         x=x,
         v=v,

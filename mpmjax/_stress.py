@@ -195,7 +195,7 @@ def _make_advance(scene, n_steps: int):
 
 
 def case_config(case: Case, size: str) -> dict:
-    from ._config import load_scene
+    from ._schema import load_scene
 
     if size not in ("ci", "full"):
         raise ValueError(f"--size = {size!r} is invalid: allowed values: ci, full")
@@ -209,7 +209,7 @@ def run_case(case: Case, size: str = "ci", progress=None) -> dict:
     import jax
     import numpy as np
 
-    from ._config import build
+    from ._build import build
 
     cfg = case_config(case, size)
     s = build(cfg)

@@ -62,7 +62,8 @@ TABLE7 = [
 def _one(overrides: dict, scene="dambreak-lab") -> dict:
     import jax
 
-    from ._config import build, load_scene
+    from ._schema import load_scene
+    from ._build import build
     from ._observables import runout
     from ._simulate import run
 

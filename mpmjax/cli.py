@@ -48,7 +48,7 @@ def _fail(msg: str) -> int:
 
 
 def cmd_scenes(args) -> int:
-    from ._config import SCHEMA, builtin_scenes
+    from ._schema import SCHEMA, builtin_scenes
 
     if args.keys:
         for key, spec in SCHEMA.items():
@@ -250,7 +250,8 @@ def run_scene(
     import numpy as np
 
     from . import __version__, _health, _metrics
-    from ._config import SceneError, build, load_scene
+    from ._schema import SceneError, load_scene
+    from ._build import build
     from ._io import FrameWriter, atomic_write_text, config_hash, plot_result, read_checkpoint, read_result
     from ._io import write_checkpoint as _write_ckpt
     from ._observables import runout
@@ -547,7 +548,7 @@ def _result_complete(path: Path) -> bool:
 
 
 def cmd_run(args) -> int:
-    from ._config import SceneError
+    from ._schema import SceneError
     from ._health import RunFailure
 
     if args.checkpoint_every < 0:

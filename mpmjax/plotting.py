@@ -259,7 +259,7 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
 
     ``method="surface"``: ``mpmjax._metrics.surface_profile`` (highest active particle plus
     half a particle spacing per cell-wide bin; nan where empty), an elevation [m].
-    ``method="kernel"`` (2D): ``calibration.observables.height_profile`` at ``x_m``
+    ``method="kernel"`` (2D): ``mpmjax.height_profile`` at ``x_m``
     (default: 201 stations over the domain) with bandwidth ``bandwidth_m`` (default one
     cell), the depth-integrated thickness that ``mpmjax calibrate`` fits, using rest volumes.
     """
@@ -287,7 +287,7 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
             raise ValueError(f"method = 'kernel' is for 2D results; this one is {g['dim']}D (allowed: 'surface')")
         import jax.numpy as jnp
 
-        from calibration.observables import height_profile
+        from ._observables import height_profile
 
         xs = np.linspace(g["lo"][ax_], g["hi"][ax_], 201) if x_m is None else np.asarray(x_m, float)
         bw = g["h"] if bandwidth_m is None else float(bandwidth_m)

@@ -18,7 +18,8 @@ import pytest
 
 import mpmjax as m
 from calibration.data import DataError, Profile, load_profiles, write_profiles_csv
-from calibration.experiments import FlowCurveExperiment, restate
+from calibration.experiments import FlowCurveExperiment
+from mpmjax import restate
 from calibration.fit import fit
 from calibration.params import ParameterSet, ParamSpec
 from calibration.sweep import parse_vary, sweep

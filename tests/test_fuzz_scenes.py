@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 import mpmjax
 from mpmjax import cli
-from mpmjax._config import SCHEMA, builtin_scenes
+from mpmjax import SCHEMA, builtin_scenes
 
 BASE = tomllib.loads(builtin_scenes()["dambreak-lab"].read_text())
 # a small grid so that build() is cheap: 10 x 3 cells in 2D

@@ -44,7 +44,7 @@ import pytest
 from conftest import COUSSOT_BASE
 
 import mpmjax as m
-from calibration.observables import deposited_volume, height_profile, smooth_front
+from mpmjax import deposited_volume, height_profile, smooth_front
 
 COUSSOT = dict(COUSSOT_BASE)
 BINGHAM = {

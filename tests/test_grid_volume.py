@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from mpmjax import _simulate
+from mpmjax import build, load_scene, validate
 from mpmjax._boundary import node_fill
-from mpmjax._config import build, load_scene, validate
 from mpmjax._transfer import make_p2g, packing_fraction
 
 

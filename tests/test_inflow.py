@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from mpmjax._config import SceneError, build, validate
+from mpmjax import SceneError, build, validate
 from mpmjax._simulate import run
 
 Q = 0.02  # m^2/s (2D, per metre of depth)

@@ -20,7 +20,7 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from mpmjax import _config
+from mpmjax import build, validate
 from mpmjax._simulate import run
 
 SPEED = 0.5  # m/s: Q / width
@@ -46,7 +46,7 @@ def _scene():
     raw["time"] = {"t_end_s": 0.2, "n_frames": 4}
     raw["numerics"]["velocity_scale_m_s"] = 1.0
     raw.setdefault("output", {})["runout_origin_m"] = 0.1
-    return _config.build(_config.validate(raw))
+    return build(validate(raw))
 
 
 @pytest.mark.xfail(

@@ -123,7 +123,7 @@ def test_profiles_with_measured_data(run, tmp_path):
     # measured points drawn: plain markers at t = 0, error bars (3 points) at 0.5 s
     assert any(np.array_equal(ln.get_xdata(), [0.05, 0.15, 0.25]) for ln in ax.lines)
     assert len(ax.containers) == 1
-    # kernel method: the line is calibration.observables.height_profile on 201 stations, bandwidth h
+    # kernel method: the line is mpmjax.height_profile on 201 stations, bandwidth h
     axk = plotting.profiles(res, [0.5], (np.array([0.1, 0.3]), np.array([0.05, 0.03])), method="kernel")
     xk, hk = axk.lines[0].get_data()
     np.testing.assert_allclose(hk, plotting.profile_at(res, -1, method="kernel")[1])

@@ -9,7 +9,7 @@ import pytest
 
 import mpmjax as m
 from mpmjax import cli
-from mpmjax._config import schema_markdown
+from mpmjax._schema import schema_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -84,7 +84,7 @@ def test_cli_bad_input_exit_2(tmp_path, capsys):
 
 def test_scene_docs_current():
     text = (ROOT / "docs" / "scenes.md").read_text()
-    assert schema_markdown() in text, "regenerate docs/scenes.md from mpmjax._config.schema_markdown()"
+    assert schema_markdown() in text, "regenerate docs/scenes.md from mpmjax._schema.schema_markdown()"
 
 
 def test_cli_run_writes_results(tmp_path):

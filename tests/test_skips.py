@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from mpmjax import _simulate, cli
-from mpmjax._config import build, load_scene, validate
+from mpmjax import build, load_scene, validate
 from mpmjax._io import read_checkpoint, read_result
 from mpmjax._simulate import StagedAdvance, capacity_schedule
 from mpmjax._step import make_step

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from mpmjax._config import build, validate
+from mpmjax import build, validate
 from mpmjax._simulate import run
 
 RHO, G, H = 1000.0, 9.81, 0.1
@@ -185,7 +185,7 @@ hi_m = [0.4, 0.55]
 
 
 def test_bad_terrain_is_a_scene_error():
-    from mpmjax._config import SceneError
+    from mpmjax import SceneError
 
     raw = {
         "domain": {"lo_m": [0.0, 0.0], "hi_m": [1.0, 0.4], "cell_size_m": 0.1},

@@ -1,4 +1,4 @@
-"""The automatic time step's velocity bound (``_config.time_step_limits``).
+"""The automatic time step's velocity bound (``mpmjax.time_step_limits``).
 
 With ``numerics.velocity_scale_m_s = 0`` the wave-speed limit uses |v| <= sqrt(2 g H) + max
 |v0|, H the fall height along gravity from the top of the material to the lowest point it can
@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mpmjax import _config
+from mpmjax import build, validate
 from mpmjax._simulate import run
 
 G = 9.81
@@ -36,7 +36,7 @@ def _lab(**changes):
 
 
 def _scale(raw):
-    setup = _config.build(_config.validate(raw))
+    setup = build(validate(raw))
     return setup, setup.info["velocity_scale_m_s"]
 
 

@@ -12,7 +12,7 @@ import pytest
 
 import mpmjax
 from mpmjax import cli
-from mpmjax._config import builtin_scenes
+from mpmjax import builtin_scenes
 from mpmjax._io import FrameWriter
 from mpmjax._xdmf import write_xdmf
 

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mpmjax._config import build, load_scene
+from mpmjax import build, load_scene
 from mpmjax._simulate import make_chunk
 
 h = float(sys.argv[1])

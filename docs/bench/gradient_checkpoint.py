@@ -6,7 +6,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from mpmjax._config import build, load_scene
+from mpmjax import build, load_scene
 from mpmjax._step import make_step
 
 h = float(sys.argv[1])

@@ -14,7 +14,7 @@ for round in 1 2; do
   "$jpy" - "$steps" "$round" <<'PY'
 import json, os, sys
 from mpmjax import _bench
-from mpmjax._config import build, validate
+from mpmjax import build, validate
 steps, rnd = int(sys.argv[1]), int(sys.argv[2])
 for dtype in ("float32",):
     raw = json.loads(json.dumps(_bench.MPM88))

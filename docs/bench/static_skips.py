@@ -39,7 +39,7 @@ def measure(setup, steps, reps=3):
 def rheology():
     """Same dam break (dambreak-lab, 1600 particles) with Newtonian, Bingham and Coussot material."""
     from mpmjax import load_scene
-    from mpmjax._config import build
+    from mpmjax import build
 
     common = ["numerics.dt_s=2e-4"]  # one step size for all three (below every model's limit)
     models = {
@@ -69,7 +69,7 @@ SLAB_3D = [
 def dim():
     """2D dam break against a thin 3D slab (periodic y, one cell thick) of the same block."""
     from mpmjax import load_scene
-    from mpmjax._config import build
+    from mpmjax import build
 
     s2 = build(load_scene("dambreak-lab", ["numerics.dt_s=2e-4"]))
     record(part="dim", case="2D", **measure(s2, 400))
@@ -96,7 +96,7 @@ def rheology_dim_interleaved():
     import jax
 
     from mpmjax import load_scene
-    from mpmjax._config import build
+    from mpmjax import build
     from mpmjax._simulate import make_chunk
 
     common = ["numerics.dt_s=2e-4"]
@@ -132,7 +132,7 @@ def rheology_dim_interleaved():
 def grid():
     """Step time against the grid size with the same particles: x extent of the domain x0.5, x1, x2."""
     from mpmjax import load_scene
-    from mpmjax._config import build
+    from mpmjax import build
 
     cases = {
         "field-dambreak-2d": ([3000.0, 24.0], 40),
@@ -153,7 +153,7 @@ def grid_interleaved():
     import jax
 
     from mpmjax import load_scene
-    from mpmjax._config import build
+    from mpmjax import build
     from mpmjax._simulate import make_chunk
 
     cases = {
@@ -194,7 +194,7 @@ def grid_particles():
     import jax
 
     from mpmjax import load_scene
-    from mpmjax._config import build
+    from mpmjax import build
     from mpmjax._simulate import _split, make_chunk
 
     cases = {

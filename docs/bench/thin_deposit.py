@@ -18,7 +18,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from mpmjax import _simulate  # noqa: E402
-from mpmjax._config import build, load_scene  # noqa: E402
+from mpmjax import build, load_scene  # noqa: E402
 
 scene_name, t_end, extra = sys.argv[1], float(sys.argv[2]), sys.argv[3:]
 over = [f"time.t_end_s={t_end}", "time.n_frames=4", "numerics.dtype=float64"] + extra

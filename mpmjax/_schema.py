@@ -1,10 +1,12 @@
-"""Scene files: TOML with documented keys in SI units, validation, and building a run.
+"""Scene keys: the schema, validation, TOML loading and ``--set`` overrides.
 
 A scene file is a TOML document whose keys are listed in ``SCHEMA`` (each with its
 unit, default, allowed range and meaning; ``mpmjax scenes --keys`` prints them and
-docs/scenes.md is generated from them).  ``load_scene(name_or_path, overrides)``
-returns a validated nested dict; ``build(cfg)`` turns it into a static ``Scene``,
-traced ``Params`` and the initial ``State``.
+docs/scenes.md is generated from them by ``schema_markdown``).  The ``material.*`` keys
+are not listed here: each rheology law declares its own (``_rheology.Param`` /
+``_rheology.Option``), and ``SCHEMA`` is rebuilt from those declarations whenever a law
+is registered.  ``load_scene(name_or_path, overrides)`` returns a validated flat dict;
+``_build.build(cfg)`` turns it into a run.
 
 Errors are ``SceneError`` (a ``ValueError``) naming the key, the value and the
 allowed range.
@@ -14,19 +16,17 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import itertools
 import math
 import tomllib
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from . import _rheology, _shapes
-from ._scene import FACE_KINDS, WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
+from ._boundary import inflow_layout
+from ._scene import FACE_KINDS, WALL_KINDS
 
 
 class SceneError(ValueError):
@@ -47,7 +47,7 @@ class Key:
 
 _REQ = object()  # marker: required
 
-SCHEMA: dict[str, Key] = {
+_HEAD: dict[str, Key] = {
     "name": Key(str, "unnamed", "-", "Scene name, written to the outputs."),
     "description": Key(str, "", "-", "Free text describing the scene and its source."),
     "domain.dim": Key(int, 2, "-", "Dimension: 2 (plane strain, per metre of depth) or 3.", choices=(2, 3)),
@@ -132,42 +132,9 @@ SCHEMA: dict[str, Key] = {
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
-    "material.model": Key(str, "newtonian", "-", "Rheology.", choices=tuple(_rheology.MODELS)),
-    "material.density_kg_m3": Key(float, _REQ, "kg/m^3", "Reference density rho.", lo=0.0, lo_open=True),
-    "material.bulk_modulus_pa": Key(float, _REQ, "Pa", "Bulk modulus kappa of the Tait EOS.", lo=0.0, lo_open=True),
-    "material.viscosity_pa_s": Key(
-        float, 1.0, "Pa s", "Newtonian viscosity, or Bingham plastic viscosity.", lo=0.0, lo_open=True
-    ),
-    "material.yield_stress_pa": Key(float, 0.0, "Pa", "Yield stress tau_y (Bingham, Herschel-Bulkley).", lo=0.0),
-    "material.bingham_variant": Key(
-        str, "papanastasiou", "-", "Bingham law.", choices=("papanastasiou", "biviscosity")
-    ),
-    "material.alpha_b": Key(float, 100.0, "-", "Bi-viscosity ratio below yield.", lo=1.0, lo_open=True),
-    "material.papanastasiou_m_s": Key(float, 100.0, "s", "Papanastasiou regularisation time m.", lo=0.0, lo_open=True),
-    "material.consistency_pa_sn": Key(float, 1.0, "Pa s^n", "Herschel-Bulkley consistency K.", lo=0.0, lo_open=True),
-    "material.flow_index": Key(float, 1.0, "-", "Herschel-Bulkley flow index.", lo=0.0, lo_open=True, hi=3.0),
-    "material.mu0_pa_s": Key(float, 4.0, "Pa s", "Coussot minimum viscosity mu0.", lo=0.0, lo_open=True),
-    "material.alpha": Key(float, 1.0, "-", "Coussot destructuration coefficient alpha.", lo=0.0, lo_open=True),
-    "material.T_s": Key(float, 0.5, "s", "Coussot restructuring time T.", lo=0.0, lo_open=True),
-    "material.n": Key(float, 2.5, "-", "Coussot exponent n.", lo=0.0, lo_open=True, hi=10.0),
-    "material.lambda0": Key(float, 1.5, "-", "Coussot initial structure lambda0.", lo=0.0),
-    "material.mu_max_pa_s": Key(
-        float, 5000.0, "Pa s", "Viscosity cap mu_max (Coussot, Herschel-Bulkley).", lo=0.0, lo_open=True
-    ),
-    "material.lambda_integrator": Key(
-        str,
-        "exact",
-        "-",
-        "Structure update: exact exponential, or the thesis's explicit Euler.",
-        choices=("exact", "euler"),
-    ),
-    "material.shear_measure": Key(
-        str,
-        "standard",
-        "-",
-        "standard: sqrt(2 d':d'); thesis: d':d'/4 (eq. 3.8 and Annex 1).",
-        choices=("standard", "thesis"),
-    ),
+}
+
+_TAIL: dict[str, Key] = {
     "gravity.g_m_s2": Key(float, 9.81, "m/s^2", "Magnitude of gravity (acts along -last axis before tilting).", lo=0.0),
     "gravity.slope_deg": Key(
         float,
@@ -238,7 +205,44 @@ SCHEMA: dict[str, Key] = {
     ),
 }
 
-SECTIONS = {k.split(".")[0] for k in SCHEMA if "." in k}
+
+def _material_key(decl) -> Key:
+    """The schema entry of a law's ``Param`` or ``Option``."""
+    if isinstance(decl, _rheology.Option):
+        return Key(str, decl.default, "-", decl.doc, choices=decl.choices)
+    default = _REQ if decl.default is None else decl.default
+    return Key(float, default, decl.unit, decl.doc, lo=decl.lo, lo_open=decl.lo_open, hi=decl.hi)
+
+
+SCHEMA: dict[str, Key] = {}
+SECTIONS: set[str] = set()
+
+
+def _rebuild() -> None:
+    """Refill ``SCHEMA`` (in place) from the fixed keys and the registered laws' declarations."""
+    SCHEMA.clear()
+    SCHEMA.update(_HEAD)
+    SCHEMA["material.model"] = Key(str, "newtonian", "-", "Rheology.", choices=tuple(_rheology.MODELS))
+    SCHEMA.update({d.key: _material_key(d) for d in _rheology.MATERIAL_KEYS})
+    SCHEMA.update(_TAIL)
+    SECTIONS.clear()
+    SECTIONS.update(k.split(".")[0] for k in SCHEMA if "." in k)
+
+
+_rebuild()
+_rheology._listeners.append(_rebuild)
+
+
+def register_law(cls):
+    """Register a rheology law (a ``_rheology.Law`` subclass): ``material.model = cls.name``
+    becomes valid and its parameters and options become scene keys.  Returns ``cls``."""
+    return _rheology.register(cls)
+
+
+def unregister_law(name: str) -> None:
+    """Remove a law added by ``register_law`` and the scene keys only it declared."""
+    _rheology.unregister(name)
+
 
 
 def _flatten(d: dict, prefix="") -> dict:
@@ -345,14 +349,15 @@ _NAN_DEFAULT = ("output.runout_origin_m", "inflow.t_stop_s")
 _MAX_PARTICLES = 2**31 - 1
 _F32 = np.finfo(np.float32)
 # float keys that become float32 arrays (material parameters, gravity, positions, velocities)
-_F32_KEYS = tuple(k for k, s in SCHEMA.items() if s.type is float and k.split(".")[0] in ("material", "gravity")) + (
-    "numerics.maxwell_shear_modulus_pa",
-    "domain.cell_size_m",
-    "domain.lo_m",
-    "domain.hi_m",
-    "gate.point_m",
-    "inflow.point_m",
-)
+def _f32_keys() -> tuple[str, ...]:
+    return tuple(k for k, s in SCHEMA.items() if s.type is float and k.split(".")[0] in ("material", "gravity")) + (
+        "numerics.maxwell_shear_modulus_pa",
+        "domain.cell_size_m",
+        "domain.lo_m",
+        "domain.hi_m",
+        "gate.point_m",
+        "inflow.point_m",
+    )
 
 
 def _check_float32_range(out: dict):
@@ -367,7 +372,7 @@ def _check_float32_range(out: dict):
                 f'{_F32.tiny:.3g} .. {_F32.max:.3g} (use numerics.dtype = "float64" for more range)'
             )
 
-    for key in _F32_KEYS:
+    for key in _f32_keys():
         val = out.get(key)
         if val is None:
             continue
@@ -463,57 +468,12 @@ def _validate_inflow(out: dict, dim: int, lo, hi, h):
             f"inflow.width_m = {out['inflow.width_m']} is invalid: allowed range: >= half the particle spacing "
             f"domain.cell_size_m / numerics.ppc = {h / out['numerics.ppc']} m"
         )
-    n = _inflow_layout(out, dim)[2]
+    n = inflow_layout(out, dim)[2]
     if n > _MAX_PARTICLES:
         raise SceneError(
             f"inflow: {n:.4g} pool particles (flow_rate_m3_s = {out['inflow.flow_rate_m3_s']}, "
             f"{t1 - t0} s); the limit is {_MAX_PARTICLES}"
         )
-
-
-def _perp_basis(d: np.ndarray) -> list[np.ndarray]:
-    """Unit vectors spanning the plane normal to the unit vector ``d``."""
-    if d.size == 2:
-        return [np.array([-d[1], d[0]])]
-    a = np.eye(3)[int(np.argmin(np.abs(d)))]
-    e1 = np.cross(d, a)
-    e1 /= np.linalg.norm(e1)
-    return [e1, np.cross(d, e1)]
-
-
-def _inflow_layout(cfg: dict, dim: int):
-    """Cross-section offsets (n_per, dim) [m], area A [m^2; 2D: m], pool size, layer count and layer dt [s].
-
-    The particle spacing is sp = h / ppc.  2D: n_per = round(width / sp) points evenly across the
-    width.  3D: the points of a square lattice of spacing sp' = min(sp, diameter/2) (centred on
-    the axis) inside the disc of the diameter (so at least 2 x 2 points); layers sp' thick.
-    Layer time dt_l = sp' / u (2D: sp / u) rounded so that a whole number of layers spans
-    [t_start, t_stop]; each layer carries Q dt_l.
-    """
-    sp = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
-    d = np.asarray(cfg["inflow.direction"], float)
-    d = d / np.linalg.norm(d)
-    w = cfg["inflow.width_m"]
-    basis = _perp_basis(d)
-    if dim == 2:
-        m = max(1, int(round(w / sp)))
-        offs = [((j + 0.5) * w / m - 0.5 * w) * basis[0] for j in range(m)]
-        area = w
-    else:
-        # at least 2 x 2 points across: a single particle on the pipe axis sits on a plane of
-        # symmetry in y and never spreads sideways (measured in field-pipe-3d at h = 0.5 m)
-        sp = min(sp, 0.5 * w)
-        area = math.pi * w * w / 4.0
-        m = max(1, int(math.ceil(w / sp)))
-        c = (np.arange(m) - 0.5 * (m - 1)) * sp
-        offs = [a * basis[0] + b * basis[1] for a in c for b in c if a * a + b * b <= 0.25 * w * w]
-        offs = offs or [0.0 * d]
-    t0 = cfg["inflow.t_start_s"]
-    t1 = cfg["time.t_end_s"] if math.isnan(cfg["inflow.t_stop_s"]) else cfg["inflow.t_stop_s"]
-    u = cfg["inflow.flow_rate_m3_s"] / area
-    with np.errstate(all="ignore"):
-        n_layers = max(1, int(round(min((t1 - t0) * u / sp, 1e12))))
-    return np.asarray(offs), area, float(n_layers) * len(offs), n_layers, (t1 - t0) / n_layers, u, d
 
 
 def validate(raw: dict) -> dict:
@@ -684,358 +644,6 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
             raise SceneError(f"terrain.csv = {ter['csv']!r}: a file path cannot contain a NUL character")
         ter["csv"] = str((path.parent / ter["csv"]).resolve()) if not Path(ter["csv"]).is_absolute() else ter["csv"]
     return validate(raw)
-
-
-def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
-    """Traced parameters from a validated scene dict."""
-    dim = cfg["domain.dim"] if dim is None else dim
-    dt = jnp.dtype(dtype)
-
-    def a(key):
-        return jnp.asarray(cfg[key], dt)
-
-    model = cfg["material.model"]
-    base = {"rho": a("material.density_kg_m3"), "kappa": a("material.bulk_modulus_pa")}
-    if model == "newtonian":
-        mat = _rheology.NewtonianParams(mu=a("material.viscosity_pa_s"), **base)
-    elif model == "bingham":
-        mat = _rheology.BinghamParams(
-            mu=a("material.viscosity_pa_s"),
-            tau_y=a("material.yield_stress_pa"),
-            alpha_b=a("material.alpha_b"),
-            m=a("material.papanastasiou_m_s"),
-            **base,
-        )
-    elif model == "herschel_bulkley":
-        mat = _rheology.HerschelBulkleyParams(
-            tau_y=a("material.yield_stress_pa"),
-            K=a("material.consistency_pa_sn"),
-            n_hb=a("material.flow_index"),
-            m=a("material.papanastasiou_m_s"),
-            mu_max=a("material.mu_max_pa_s"),
-            **base,
-        )
-    else:
-        mat = _rheology.CoussotParams(
-            mu0=a("material.mu0_pa_s"),
-            alpha=a("material.alpha"),
-            T=a("material.T_s"),
-            n=a("material.n"),
-            lambda0=a("material.lambda0"),
-            mu_max=a("material.mu_max_pa_s"),
-            **base,
-        )
-    g = cfg["gravity.g_m_s2"]
-    th = math.radians(cfg["gravity.slope_deg"])
-    ph = math.radians(cfg["gravity.transverse_slope_deg"])
-    if dim == 2:
-        gv = [g * math.sin(th), -g * math.cos(th)]
-    else:
-        gv = [g * math.sin(th), g * math.sin(ph), -g * math.cos(th) * math.cos(ph)]
-    return Params(material=mat, gravity=jnp.asarray(gv, dt))
-
-
-def make_rheology(cfg: dict):
-    model = cfg["material.model"]
-    if model == "bingham":
-        return _rheology.Bingham(variant=cfg["material.bingham_variant"], shear_measure=cfg["material.shear_measure"])
-    if model == "coussot":
-        return _rheology.Coussot(integrator=cfg["material.lambda_integrator"])
-    return _rheology.MODELS[model]()
-
-
-def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Regular particle seeding: ``ppc`` per axis per cell.  Returns x (n, dim) [m],
-    vol0 (n,) [m^dim] and v (n, dim) [m/s]."""
-    dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
-    dx = h / ppc
-    xs, vs = [np.zeros((0, dim))], [np.zeros((0, dim))]
-    for b in cfg["bodies"]:
-        lo, hi = np.asarray(b["lo_m"]), np.asarray(b["hi_m"])
-        counts = np.maximum(np.round((hi - lo) / dx).astype(int), 1)
-        axes = [lo[d] + (np.arange(counts[d]) + 0.5) * (hi[d] - lo[d]) / counts[d] for d in range(dim)]
-        mesh = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
-        xs.append(mesh)
-        vs.append(np.broadcast_to(np.asarray(b.get("velocity_m_s", [0.0] * dim), float), mesh.shape))
-    x = np.concatenate(xs)
-    # each body's particles fill it exactly: volume = body volume / count
-    vols = [np.zeros(0)]
-    for b, xb in zip(cfg["bodies"], xs[1:]):
-        vols.append(np.full(len(xb), np.prod(np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / len(xb)))
-    return x, np.concatenate(vols), np.concatenate(vs)
-
-
-@dataclasses.dataclass
-class Setup:
-    """A built run: static scene, traced parameters, initial state and derived facts."""
-
-    cfg: dict
-    scene: Scene
-    params: Params
-    state: Any
-    info: dict
-
-
-def _fall_height(cfg: dict, params: Params, x: np.ndarray) -> float:
-    """Largest drop along gravity [m] available to the material: from its highest point to the
-    lowest point of the domain box (with a terrain: the lowest terrain sample, which the
-    material cannot pass).  Measured along the (possibly tilted) gravity vector, so a block
-    released above the floor, or a slope tilted by ``gravity.slope_deg``, counts its whole
-    fall.  (It used to be the material's own height span, which let a 1 m drop run at an
-    impact speed 2.4x the bound and blow up, and field runs exceed their bound by 1.7x.)"""
-    g = np.asarray(params.gravity, float)
-    gn = float(np.linalg.norm(g))
-    if x.size == 0 or gn == 0.0:
-        return 0.0
-    up = -g / gn
-    dim = x.shape[1]
-    if cfg["terrain.type"] != "none":
-        hs = np.asarray(cfg["terrain.heights_m"], float)
-        axes = [cfg["terrain.origin_m"][a] + cfg["terrain.spacing_m"] * np.arange(hs.shape[a]) for a in range(dim - 1)]
-        grid = np.meshgrid(*axes, indexing="ij")
-        low = np.stack([*(a.ravel() for a in grid), hs.ravel()], axis=1)
-    else:
-        lo, hi = cfg["domain.lo_m"], cfg["domain.hi_m"]
-        low = np.array(list(itertools.product(*zip(lo, hi))), float)
-    return max(0.0, float(np.max(x @ up) - np.min(low @ up)))
-
-
-def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rheology) -> dict:
-    """Wave-speed and viscous limits [s] and the inputs they came from.
-
-    dt_wave = cfl h / (c + |v|), c = sqrt((kappa + 4/3 G)/rho) with the Maxwell modulus G
-    (G = 0 for the explicit update); |v| = velocity_scale_m_s, or sqrt(2 g H) plus the
-    largest initial speed, H the fall height along gravity from the highest material point
-    to the lowest point the material can reach (``_fall_height``): a frictionless energy bound.
-    dt_visc = viscous_safety rho h^2 / (2 d mu_max), mu_max the largest viscosity the law
-    can reach; it binds only the explicit update.
-    """
-    mat = params.material
-    rho, kappa = float(mat.rho), float(mat.kappa)
-    h, dim = cfg["domain.cell_size_m"], cfg["domain.dim"]
-    maxwell = cfg["numerics.viscous_update"] == "maxwell"
-    G = (cfg["numerics.maxwell_shear_modulus_pa"] or kappa) if maxwell else 0.0
-    # numpy float64 arithmetic: extreme (validated) inputs give inf / 0 / nan instead of
-    # raising; build() rejects a limit that is not a positive finite number.
-    f64 = np.float64
-    with np.errstate(all="ignore"):
-        c = float(np.sqrt((f64(kappa) + f64(4.0 / 3.0) * f64(G)) / f64(rho)))
-        vscale = cfg["numerics.velocity_scale_m_s"]
-        if vscale == 0.0:
-            # + half a particle spacing: the top of the material, not its top particle centre
-            H = _fall_height(cfg, params, x) + 0.5 * h / cfg["numerics.ppc"]
-            vscale = float(
-                np.sqrt(f64(2.0) * f64(cfg["gravity.g_m_s2"]) * f64(H))
-                + np.max(np.linalg.norm(np.asarray(v, float), axis=1), initial=0.0)
-            )
-        dt_wave = float(f64(cfg["numerics.cfl"]) * f64(h) / (f64(c) + f64(vscale)))
-        mu_max = float(rheology.max_viscosity(mat))
-        dt_visc = float(
-            f64(cfg["numerics.viscous_safety"]) * f64(rho) * f64(h) * f64(h) / (f64(2.0 * dim) * f64(mu_max))
-        )
-    limit = dt_wave if maxwell else min(dt_wave, dt_visc)
-    return {
-        "dt_wave_s": dt_wave,
-        "dt_viscous_s": dt_visc,
-        "dt_limit_s": limit,
-        "wave_speed_m_s": c,
-        "velocity_scale_m_s": vscale,
-        "maxwell_G_pa": G,
-        "mu_max_pa_s": mu_max,
-    }
-
-
-_MAX_STEPS_PER_FRAME = 2**31 - 1  # scan length of one frame
-
-
-def _dt_inputs(cfg: dict, lim: dict) -> str:
-    keys = [
-        "numerics.dt_s",
-        "domain.cell_size_m",
-        "numerics.cfl",
-        "material.density_kg_m3",
-        "material.bulk_modulus_pa",
-        "numerics.maxwell_shear_modulus_pa",
-        "numerics.velocity_scale_m_s",
-        "gravity.g_m_s2",
-    ]
-    text = ", ".join(f"{k} = {cfg[k]!r}" for k in keys)
-    text += f", bodies velocity_m_s (velocity scale {lim['velocity_scale_m_s']!r} m/s)"
-    if cfg["numerics.viscous_update"] == "explicit":
-        visc = {
-            "newtonian": ["material.viscosity_pa_s"],
-            "bingham": [
-                "material.viscosity_pa_s",
-                "material.yield_stress_pa",
-                "material.papanastasiou_m_s",
-                "material.alpha_b",
-            ],
-        }.get(cfg["material.model"], ["material.mu_max_pa_s"])
-        text += (
-            f", numerics.viscous_safety = {cfg['numerics.viscous_safety']!r}, "
-            + ", ".join(f"{k} = {cfg[k]!r}" for k in visc)
-            + f" (material.model = {cfg['material.model']!r}: mu_max = {lim['mu_max_pa_s']!r} Pa s)"
-        )
-    return text
-
-
-def build(cfg: dict) -> Setup:
-    """Validated scene dict -> ``Setup`` (scene, params, initial state, info).
-
-    A ``float64`` scene switches on ``jax_enable_x64`` (without it JAX would silently
-    truncate every array to float32).
-    """
-    dim, h = cfg["domain.dim"], cfg["domain.cell_size_m"]
-    dtype = cfg["numerics.dtype"]
-    if dtype == "float64" and not jax.config.jax_enable_x64:
-        jax.config.update("jax_enable_x64", True)
-    params = make_params(cfg, dim, dtype)
-    rheology = make_rheology(cfg)
-    x, vol0, v = seed_bodies(cfg)
-    n_bodies = len(x)
-    inflow = None
-    if cfg["inflow.point_m"] is not None:
-        offs, area, _, n_layers, layer_dt, u, d = _inflow_layout(cfg, dim)
-        n_per = len(offs)
-        thickness = u * layer_dt
-        exit_ = np.asarray(cfg["inflow.point_m"], float)
-        inflow = Inflow(
-            point=tuple(map(float, exit_)),
-            direction=tuple(map(float, d)),
-            speed=float(u),
-            first=int(n_bodies),
-            n_layers=int(n_layers),
-            n_per_layer=int(n_per),
-            layer_dt=float(layer_dt),
-            t_start=float(cfg["inflow.t_start_s"]),
-            thickness=float(thickness),
-            offsets=tuple(tuple(map(float, o)) for o in offs),
-            half_width=0.5 * float(cfg["inflow.width_m"]),
-            pipe_length=2.0 * float(h),
-        )
-        # parked (inactive) at the exit, one layer thickness behind it
-        park = np.tile(exit_[None, :] + offs - 0.5 * thickness * d[None, :], (n_layers, 1))
-        x = np.concatenate([x, park])
-        vol0 = np.concatenate([vol0, np.full(len(park), area * thickness / n_per)])
-        v_pool = np.broadcast_to(u * d, park.shape)
-        v = np.concatenate([v, v_pool])
-    lim = time_step_limits(cfg, params, x, v, rheology)
-    t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
-    dt_req = cfg["numerics.dt_s"]
-    if not (math.isfinite(lim["dt_limit_s"]) and lim["dt_limit_s"] > 0.0):
-        raise SceneError(
-            f"the stable time step is {lim['dt_limit_s']!r} s (wave-speed limit {lim['dt_wave_s']!r} s, viscous limit "
-            f"{lim['dt_viscous_s']!r} s), not a positive finite number; allowed: inputs that give one: "
-            f"{_dt_inputs(cfg, lim)}"
-        )
-    if dt_req > 0.0:
-        if dt_req > lim["dt_limit_s"] * (1 + 1e-9):
-            raise SceneError(
-                f"numerics.dt_s = {dt_req} is invalid: allowed range: <= {lim['dt_limit_s']:.4g} s "
-                f"(wave-speed limit {lim['dt_wave_s']:.4g} s, viscous limit {lim['dt_viscous_s']:.4g} s)"
-            )
-        dt_target = dt_req
-    else:
-        dt_target = lim["dt_limit_s"]
-    with np.errstate(all="ignore"):
-        spf_f = float(np.float64(t_end) / np.float64(n_frames) / np.float64(dt_target))
-    if not math.isfinite(spf_f) or spf_f > _MAX_STEPS_PER_FRAME:
-        raise SceneError(
-            f"time.t_end_s = {t_end} with time.n_frames = {n_frames} needs {spf_f:.4g} steps per frame of "
-            f"dt = {dt_target:.4g} s; allowed: at most {_MAX_STEPS_PER_FRAME} steps per frame (shorten time.t_end_s, "
-            f"raise time.n_frames, or change the inputs of the time step: {_dt_inputs(cfg, lim)})"
-        )
-    spf = max(1, math.ceil(spf_f - 1e-9))
-    dt = t_end / (n_frames * spf)
-    lo, hi = np.asarray(cfg["domain.lo_m"]), np.asarray(cfg["domain.hi_m"])
-    faces = [(cfg[f"boundary.{'xyz'[a]}_lo"], cfg[f"boundary.{'xyz'[a]}_hi"]) for a in range(dim)]
-    periodic = tuple(f[0] == "periodic" for f in faces)
-    ng = ghost_cells(cfg["numerics.shape"])
-    ncell = np.round((hi - lo) / h).astype(int)
-    origin = tuple(float(lo[a] - (0 if periodic[a] else ng * h)) for a in range(dim))
-    shape = tuple(int(ncell[a] if periodic[a] else ncell[a] + 2 * ng + 1) for a in range(dim))
-    walls = []
-    for a in range(dim):
-        for side, kind in zip((0, 1), faces[a]):
-            if kind in WALL_KINDS:
-                nrm = [0.0] * dim
-                nrm[a] = 1.0 if side == 0 else -1.0
-                pt = [0.0] * dim
-                pt[a] = float(lo[a] if side == 0 else hi[a])
-                walls.append(Wall(tuple(pt), tuple(nrm), kind))
-    for p in cfg["boundary.planes"]:
-        walls.append(Wall(tuple(map(float, p["point_m"])), tuple(map(float, p["normal"])), p.get("type", "noslip")))
-    gate = None
-    if cfg["gate.point_m"] is not None:
-        gate = Gate(tuple(cfg["gate.point_m"]), tuple(cfg["gate.normal"]))
-    elif inflow is not None and cfg["inflow.aging_gate"]:
-        gate = Gate(inflow.point, inflow.direction)
-    terrain = None
-    if cfg["terrain.type"] != "none":
-        hs = np.asarray(cfg["terrain.heights_m"], float)
-        terrain = Terrain(
-            origin=tuple(map(float, cfg["terrain.origin_m"])),
-            spacing=(float(cfg["terrain.spacing_m"]),) * (dim - 1),
-            heights=tuple(map(tuple, hs)) if hs.ndim == 2 else tuple(map(float, hs)),
-            kind=cfg["terrain.type"],
-            friction=float(cfg["terrain.friction"]),
-        )
-    scene = Scene(
-        dim=dim,
-        h=float(h),
-        lo=tuple(map(float, lo)),
-        hi=tuple(map(float, hi)),
-        periodic=periodic,
-        grid_origin=origin,
-        grid_shape=shape,
-        walls=tuple(walls),
-        shape=cfg["numerics.shape"],
-        lp_cells=0.5 / cfg["numerics.ppc"],
-        grid_density_cap=float(cfg["numerics.grid_density_cap"]),
-        transfer=cfg["numerics.transfer"],
-        flip_blend=cfg["numerics.flip_blend"],
-        rheology=rheology,
-        shear_measure=cfg["material.shear_measure"],
-        viscous_update=cfg["numerics.viscous_update"],
-        maxwell_G=float(lim["maxwell_G_pa"]) if lim["maxwell_G_pa"] else float(params.material.kappa),
-        dt=float(dt),
-        steps_per_frame=int(spf),
-        n_frames=int(n_frames),
-        n_particles=int(len(x)),
-        gate=gate,
-        dtype=dtype,
-        inflow=inflow,
-        terrain=terrain,
-    )
-    active = np.arange(len(x)) < n_bodies
-    state = init_state(scene, params, x, vol0, np.where(active[:, None], v, 0.0), active=active)
-    if inflow is not None and gate is not None and cfg["gate.point_m"] is None:
-        # the exit gate holds only the pipe material back: initial bodies age from t = 0
-        state = state._replace(gate=jnp.asarray(active))
-    axis = cfg["output.runout_axis"]
-    origin_r = cfg["output.runout_origin_m"]
-    if math.isnan(origin_r):
-        starts = [b["lo_m"][axis] for b in cfg["bodies"]]
-        if inflow is not None:
-            starts.append(inflow.point[axis])
-        origin_r = float(min(starts))
-    info = dict(
-        lim,
-        dt_s=float(dt),
-        n_steps=scene.n_steps,
-        runout_axis=axis,
-        runout_origin_m=origin_r,
-        particle_spacing_m=h / cfg["numerics.ppc"],
-    )
-    if inflow is not None:
-        info.update(
-            inflow_pool_particles=int(len(x) - n_bodies),
-            inflow_speed_m_s=inflow.speed,
-            inflow_layer_dt_s=inflow.layer_dt,
-            inflow_volume_m3=float(np.sum(vol0[n_bodies:])),
-            inflow_t_stop_s=inflow.t_stop,
-        )
-    return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
 
 
 def schema_markdown() -> str:

@@ -1,0 +1,168 @@
+"""The package's layering, checked on the source (issue 16).
+
+* Every module of ``mpmjax`` and ``calibration`` imports on its own, whatever is imported
+  first (an import cycle shows up as an ImportError of a partly initialised module).
+* The import graph (module-level and function-level imports, parsed with ``ast``) has no
+  cycle among our modules.
+* No library module imports the studies (``mpmjax.studies``: benchmarks and
+  reproductions); only the command line (``mpmjax.cli``) and the studies themselves do.
+* The simulator does not import its client: no ``mpmjax`` module but ``cli`` imports
+  ``calibration``.
+* ``calibration`` uses only the public ``mpmjax`` API: ``mpmjax`` itself and its public
+  submodules (no ``mpmjax._private``).
+* Imports inside functions are only the optional heavy ones (matplotlib), each with a
+  comment on its line or the line before saying why.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("mpmjax", "calibration")
+# imports allowed inside a function body: optional heavy modules loaded only when used
+LAZY_OK = ("matplotlib",)
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = list(rel.parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _resolve(mod: str, is_pkg: bool, node: ast.ImportFrom) -> list[str]:
+    """Absolute module names a ``from ... import ...`` depends on."""
+    if node.level:
+        base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+        base = base[: len(base) - (node.level - 1)]
+        target = ".".join(base + ([node.module] if node.module else []))
+    else:
+        target = node.module or ""
+    subs = [f"{target}.{a.name}" for a in node.names if f"{target}.{a.name}" in MODULES]
+    # ``from . import _x`` depends on the submodule only (the parent package is always set up
+    # first); a name defined in the package itself (``from . import __version__``) depends on it
+    return subs + ([target] if len(subs) < len(node.names) else [])
+
+
+def _imports(mod: str, path: Path):
+    """(imported module, line, inside a function?) for every import of ``mod``."""
+    tree = ast.parse(path.read_text(), str(path))
+    is_pkg = path.name == "__init__.py"
+    out = []
+
+    def visit(node, in_fn):
+        for child in ast.iter_child_nodes(node):
+            fn = in_fn or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda))
+            if isinstance(child, ast.Import):
+                out.extend((a.name, child.lineno, in_fn) for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                out.extend((name, child.lineno, in_fn) for name in _resolve(mod, is_pkg, child))
+            visit(child, fn)
+
+    visit(tree, False)
+    return out
+
+
+def _ours(name: str) -> str | None:
+    """The module of ours that an imported name belongs to (longest match), else None."""
+    parts = name.split(".")
+    for k in range(len(parts), 0, -1):
+        cand = ".".join(parts[:k])
+        if cand in MODULES:
+            return cand
+    return None
+
+
+GRAPH = {m: sorted({o for n, _, _ in _imports(m, p) if (o := _ours(n)) and o != m}) for m, p in MODULES.items()}
+
+
+def _is_study(m: str) -> bool:
+    return m == "mpmjax.studies" or m.startswith("mpmjax.studies.")
+
+
+def test_every_module_imports_on_its_own():
+    # one interpreter (jax is imported once); our modules are dropped from sys.modules before each import
+    code = (
+        "import importlib, sys, traceback\n"
+        f"mods = {sorted(MODULES)!r}\n"
+        "bad = []\n"
+        "for m in mods:\n"
+        "    for k in [k for k in sys.modules if k.split('.')[0] in ('mpmjax', 'calibration')]:\n"
+        "        del sys.modules[k]\n"
+        "    try:\n"
+        "        importlib.import_module(m)\n"
+        "    except Exception:\n"
+        "        bad.append(m + ': ' + traceback.format_exc(limit=3))\n"
+        "print('\\n'.join(bad))\n"
+        "sys.exit(1 if bad else 0)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_import_graph_has_no_cycle():
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def dfs(m):
+        state[m] = 1
+        stack.append(m)
+        for o in GRAPH[m]:
+            if state.get(o) == 1:
+                cyc = stack[stack.index(o) :] + [o]
+                raise AssertionError("import cycle: " + " -> ".join(cyc))
+            if o not in state:
+                dfs(o)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(GRAPH):
+        if m not in state:
+            dfs(m)
+
+
+def test_library_does_not_import_studies_or_calibration():
+    bad = []
+    for m, deps in GRAPH.items():
+        if not m.startswith("mpmjax") or m == "mpmjax.cli" or _is_study(m):
+            continue
+        bad += [f"{m} imports {o}" for o in deps if _is_study(o) or o.startswith("calibration")]
+    assert not bad, bad
+
+
+def test_calibration_uses_only_the_public_mpmjax_api():
+    bad = []
+    for m, path in MODULES.items():
+        if not m.startswith("calibration"):
+            continue
+        for name, line, _ in _imports(m, path):
+            if name.startswith("mpmjax") and any(p.startswith("_") for p in name.split(".")[1:]):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    assert not bad, bad
+
+
+def test_imports_inside_functions_are_optional_heavy_ones_with_a_reason():
+    bad = []
+    for m, path in MODULES.items():
+        lines = path.read_text().splitlines()
+        for name, line, in_fn in _imports(m, path):
+            if not in_fn:
+                continue
+            here = f"{path.relative_to(ROOT)}:{line} imports {name} inside a function"
+            if name.split(".")[0] not in LAZY_OK:
+                bad.append(here)
+            elif "#" not in lines[line - 1] and "#" not in lines[line - 2]:
+                bad.append(here + " without a comment saying why")
+    assert not bad, bad
