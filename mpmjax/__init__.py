@@ -9,14 +9,16 @@ Public API (modules are private; names are re-exported here):
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
   parameter NamedTuples
 * observables: ``runout``
+* runs on disk (what ``mpmjax run`` does): ``run_scene`` (result.h5, summary.json, plots,
+  checkpoint and resume), ``RunFailure`` (a failed health check), ``Interrupted`` (SIGINT/SIGTERM)
 * plots of a saved run: the ``plotting`` module (``particles``, ``profiles``,
   ``runout_vs_time``, ``animate``)
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
 from . import plotting  # imports matplotlib only when a plot is made
 from ._config import SCHEMA, SceneError, Setup, build, builtin_scenes, load_scene, make_params, validate
+from ._driver import Interrupted, run_scene
+from ._health import RunFailure
 from ._observables import runout
 from ._rheology import (
     Bingham,
@@ -31,11 +33,7 @@ from ._rheology import (
 from ._scene import Gate, Params, Scene, State, Wall, init_state
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
 from ._step import make_p2g, make_step, tait_pressure
-
-try:
-    __version__ = version("mpmjax")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.1.0.dev0"
+from ._version import __version__
 
 __all__ = [
     "SCHEMA",
@@ -70,4 +68,7 @@ __all__ = [
     "make_step",
     "tait_pressure",
     "plotting",
+    "run_scene",
+    "RunFailure",
+    "Interrupted",
 ]

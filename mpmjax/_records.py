@@ -1,6 +1,6 @@
 """``mpmjax records``: the thesis's headline figures next to ours (issue 5, "Records").
 
-Each record runs one built-in scene through ``mpmjax.cli.run_scene`` (so every run also
+Each record runs one built-in scene through ``mpmjax.run_scene`` (so every run also
 leaves its ``result.h5``, ``summary.json`` and ``result.png`` under ``--out``) and reads the
 figure the thesis reports from the run's ``summary.json`` (or, for the field pipe's
 centre-line beach slope, from the last frame of ``result.h5``):
@@ -170,7 +170,7 @@ def centreline_beach_slope(result_h5: Path, band_m: float) -> float:
 
 
 def _run(scene: str, out: Path, overrides: list[str], log, progress: bool = False) -> dict:
-    from .cli import run_scene
+    from ._driver import run_scene
 
     log(f"  {scene} {' '.join(overrides)}".rstrip())
     s = run_scene(scene, out, overrides, quiet=not progress)
@@ -475,7 +475,8 @@ def add_arguments(p):
 def cmd_records(args) -> int:
     from ._config import SceneError
     from ._health import RunFailure
-    from .cli import FAILED, _fail
+    from ._driver import FAILED
+    from ._driver import fail as _fail
 
     if args.size not in SCALE_SIZES:
         return _fail(f"--size {args.size!r} is invalid: allowed ci, full")

@@ -353,7 +353,7 @@ def run_stress(size: str = "ci", names=None, out: Path | None = None, log=None) 
         case = next(c for c in CASES if c.name == n)
         prog = None
         if log is not None:
-            from .cli import Progress
+            from ._driver import Progress
 
             bar = Progress(1, f"{n:13s}")
 

@@ -1,4 +1,4 @@
-"""mpmjax.plotting on a coarse dam break run once through the CLI runner (``cli.run_scene``).
+"""mpmjax.plotting on a coarse dam break run once through the CLI runner (``mpmjax.run_scene``).
 
 The checks compare what is drawn with what is stored in result.h5: one scatter point per
 active particle at its stored position, colour values equal to the stored field, profiles
@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from mpmjax import _metrics, plotting  # noqa: E402
+from mpmjax import _metrics, plotting, run_scene  # noqa: E402
 from mpmjax._io import read_result  # noqa: E402
 
 # 2 m x 0.24 m; 0.2 m BASE Coussot block at 2 cm cells (400 particles); 0.5 s of the collapse, 5 frames
@@ -23,10 +23,8 @@ OVERRIDES = ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5"]
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from mpmjax import cli
-
     out = tmp_path_factory.mktemp("plot")
-    summary = cli.run_scene("dambreak-lab", out, OVERRIDES, quiet=True)
+    summary = run_scene("dambreak-lab", out, OVERRIDES, quiet=True)
     return out, summary, read_result(out / "result.h5")
 
 
