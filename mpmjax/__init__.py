@@ -33,7 +33,7 @@ from ._rheology import (
 from ._scene import Gate, Params, Scene, State, Wall, init_state
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
 from ._step import make_p2g, make_step, tait_pressure
-from ._version import __version__
+from ._version import __version__ as __version__  # re-exported
 
 __all__ = [
     "SCHEMA",

@@ -19,11 +19,12 @@ from pathlib import Path
 
 from calibration import cli as calcli
 
-from . import _bench, _pareto, _records, _stress, rheometer
+from . import rheometer
 from ._config import SCHEMA, SceneError, builtin_scenes
 from ._driver import ANIMATION_MAX_FRAMES, CHECKPOINT_EVERY, FAILED, Interrupted, fail, run_scene
 from ._health import RunFailure
-from ._studies import run_study
+from .studies import bench, pareto, records, stress
+from .studies.tables import run_study
 
 
 def cmd_scenes(args) -> int:
@@ -87,7 +88,7 @@ def cmd_rheometer(args) -> int:
 
 def cmd_bench(args) -> int:
     try:
-        return _bench.run_bench(args)
+        return bench.run_bench(args)
     except ValueError as e:
         return fail(str(e))
 
@@ -141,17 +142,17 @@ def main(argv=None) -> int:
     rheometer.add_arguments(prh)
     prh.set_defaults(fn=cmd_rheometer)
     pb = sub.add_parser("bench", help="measure particle-steps/s, scaling, gradient/forward time and vmap batching")
-    _bench.add_arguments(pb)
+    bench.add_arguments(pb)
     pb.set_defaults(fn=cmd_bench)
     pss = sub.add_parser("stress", help="robustness cases (stiff, viscous, field scale, slope, drop, 100k steps)")
-    _stress.add_arguments(pss)
-    pss.set_defaults(fn=_stress.cmd_stress)
+    stress.add_arguments(pss)
+    pss.set_defaults(fn=stress.cmd_stress)
     prec = sub.add_parser("records", help="run the thesis's record scenes; our figures next to the thesis's (table)")
-    _records.add_arguments(prec)
-    prec.set_defaults(fn=_records.cmd_records)
+    records.add_arguments(prec)
+    prec.set_defaults(fn=records.cmd_records)
     ppa = sub.add_parser("pareto", help="error against run time of the lab dam break numerics (Pareto front)")
-    _pareto.add_arguments(ppa)
-    ppa.set_defaults(fn=_pareto.cmd_pareto)
+    pareto.add_arguments(ppa)
+    ppa.set_defaults(fn=pareto.cmd_pareto)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
