@@ -26,7 +26,7 @@ import numpy as np
 
 from . import _health, _metrics, plotting
 from ._config import SceneError, build, load_scene
-from ._io import FrameWriter, _jsonable, atomic_write_text, config_hash, plot_result, read_checkpoint, read_result
+from ._io import FrameWriter, _jsonable, atomic_write_text, config_hash, read_checkpoint, read_result
 from ._io import write_checkpoint as _write_ckpt
 from ._observables import runout
 from ._simulate import StagedAdvance, make_prefix_advance
@@ -473,7 +473,7 @@ def run_scene(
         summary.update(_metrics.plan_view_summary(res, out / "plan_view.h5"))
         written.insert(3, "plan_view.h5")
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
-    plot_result(out / "result.png", res["frames"], summary, cfg["name"])
+    plotting.plot_result(out / "result.png", res["frames"], summary, cfg["name"])
     if sc.dim == 3:
         plotting.plot_3d_overview(res, out / "plan_view.h5", summary, out)
         written += ["plan_view.png", "sections.png"]
