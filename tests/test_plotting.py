@@ -13,7 +13,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from PIL import Image  # noqa: E402
 
+from calibration.data import Profile  # noqa: E402
 from mpmjax import _metrics, plotting, run_scene  # noqa: E402
 from mpmjax._io import read_result  # noqa: E402
 
@@ -99,8 +101,6 @@ def test_runout_vs_time_matches_summary(run):
 
 
 def test_profiles_with_measured_data(run, tmp_path):
-    from calibration.data import Profile
-
     _, summary, res = run
     data = [
         Profile(np.array([0.05, 0.15, 0.25]), np.array([0.2, 0.2, 0.0]), t_s=0.0),
@@ -143,8 +143,6 @@ def test_profiles_with_measured_data(run, tmp_path):
 
 
 def test_animate_writes_one_image_per_frame(run, tmp_path):
-    from PIL import Image
-
     _, _, res = run
     path = plotting.animate(res, tmp_path / "run.gif", field="speed", fps=4)
     with Image.open(path) as im:
