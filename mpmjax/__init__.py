@@ -15,15 +15,17 @@ Public API (modules are private; names are re-exported here):
   ``deposited_volume``, ``particle_volume``, ``gaussian_kernel``; metrics ``kinetic_energy``,
   ``time_to_rest``
 * files: ``atomic_write_text``
+* runs on disk (what ``mpmjax run`` does): ``run_scene`` (result.h5, summary.json, plots,
+  checkpoint and resume), ``RunFailure`` (a failed health check), ``Interrupted`` (SIGINT/SIGTERM)
 * plots of a saved run: the ``plotting`` module (``particles``, ``profiles``,
   ``runout_vs_time``, ``animate``)
 """
 
-from importlib.metadata import PackageNotFoundError, version
-
 from . import plotting  # imports matplotlib only when a plot is made
 from ._build import Setup, build, make_params, time_step_limits
 from ._constitutive import tait_pressure
+from ._driver import Interrupted, run_scene
+from ._health import RunFailure
 from ._io import atomic_write_text
 from ._metrics import kinetic_energy, time_to_rest
 from ._observables import deposited_volume, gaussian_kernel, height_profile, particle_volume, runout, smooth_front
@@ -48,11 +50,7 @@ from ._scene import Gate, Params, Scene, State, Wall, init_state, restate
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
 from ._step import make_step
 from ._transfer import make_p2g
-
-try:
-    __version__ = version("mpmjax")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.1.0.dev0"
+from ._version import __version__ as __version__  # re-exported
 
 __all__ = [
     "SCHEMA",
@@ -105,4 +103,7 @@ __all__ = [
     "make_step",
     "tait_pressure",
     "plotting",
+    "run_scene",
+    "RunFailure",
+    "Interrupted",
 ]

@@ -18,7 +18,10 @@ from the last good state to find the first step at which a check fails.
 
 from __future__ import annotations
 
+import jax
 import numpy as np
+
+from ._simulate import make_chunk
 
 CFL_MAX = 1.0
 J_MIN, J_MAX = 0.1, 10.0
@@ -169,10 +172,6 @@ def locate(scene, params, cfg, start, max_steps: int | None = None):
     ``(step_in_frame, state_before, state_after, problems)`` for the first step whose
     state fails ``check``, or ``None`` if no single step fails (the replay is a separately
     compiled program and may differ from the frame in the last bits)."""
-    import jax
-
-    from ._simulate import make_chunk
-
     one = jax.jit(make_chunk(scene, 1))
     n = scene.steps_per_frame if max_steps is None else min(max_steps, scene.steps_per_frame)
     st = start

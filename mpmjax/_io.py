@@ -1,4 +1,5 @@
-"""Results on disk: HDF5 frames written as they are produced, summary.json, pictures.
+"""Results on disk: HDF5 frames written as they are produced, summary.json, checkpoints
+(the pictures of a run: ``mpmjax.plotting``).
 
 HDF5 schema of ``result.h5`` (see docs/output.md):
 
@@ -36,6 +37,8 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+
+from ._scene import State
 
 UNITS = {
     "t_s": "s",
@@ -270,8 +273,6 @@ def write_checkpoint(path, state, frame: int, cfg_hash: str, meta: dict):
 def read_checkpoint(path):
     """``(state, frame, config_hash, meta)`` from ``write_checkpoint``; the state's arrays are
     numpy arrays with the dtypes they were written with (exact, bit for bit)."""
-    from ._scene import State
-
     with h5py.File(path, "r") as f:
         vals = {}
         for name in State._fields:
@@ -281,43 +282,3 @@ def read_checkpoint(path):
         h = f.attrs["config_hash"]
         meta = json.loads(f.attrs["meta_json"])
     return State(**vals), frame, (h.decode() if isinstance(h, bytes) else h), meta
-
-
-def plot_result(path_png, frames: dict, summary: dict, title: str, snapshot_times=(1.0, 5.0)):
-    """Side views at ~1 s, ~5 s (as in thesis Figs. 34-42) and the final time, coloured by
-    viscosity on one log scale, plus runout against time.  Vertical scale exaggerated."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
-
-    t = frames["t_s"]
-    picks = sorted({int(np.argmin(np.abs(t - ts))) for ts in snapshot_times if ts < t[-1]} | {len(t) - 1})
-    dim = frames["x_m"].shape[-1]
-    vert = dim - 1
-    act_all = frames["active"][picks].astype(bool)
-    mu_sel = np.clip(frames["mu_pa_s"][picks][act_all], 1e-9, None)
-    lo, hi = (mu_sel.min(), mu_sel.max()) if mu_sel.size else (1.0, 10.0)
-    norm = LogNorm(vmin=lo, vmax=max(hi, lo * 1.001))
-    xs = frames["x_m"][picks][act_all]
-    xmax, zmax = float(xs[:, 0].max()), float(xs[:, vert].max())
-    fig, axes = plt.subplots(len(picks) + 1, 1, figsize=(10, 2.0 * len(picks) + 2.5))
-    for ax, k in zip(axes, picks):
-        act = frames["active"][k].astype(bool)
-        x = frames["x_m"][k][act]
-        sc = ax.scatter(x[:, 0], x[:, vert], c=frames["mu_pa_s"][k][act], s=1.5, cmap="viridis", norm=norm)
-        ax.set_xlim(float(xs[:, 0].min()) - 0.02 * xmax, 1.05 * xmax)
-        ax.set_ylim(float(xs[:, vert].min()) - 0.05 * zmax, 1.15 * zmax)
-        ax.set_ylabel(("y" if vert == 1 else "z") + " [m]")
-        ax.set_title(f"{title}: t = {t[k]:.2f} s (vertical scale exaggerated)", fontsize=9)
-        fig.colorbar(sc, ax=ax, label="μ [Pa·s]")
-    axes[len(picks) - 1].set_xlabel("x [m]")
-    axr = axes[-1]
-    axr.plot(summary["times_s"], summary["runout_m"], "-o", ms=3)
-    axr.set_xlabel("time [s]")
-    axr.set_ylabel("runout [m]")
-    axr.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path_png, dpi=110)
-    plt.close(fig)

@@ -47,9 +47,14 @@ to the base; bins of one cell size h on the run's x-y grid):
 
 from __future__ import annotations
 
+import json
 import math
+import os
+from pathlib import Path
 from typing import NamedTuple
 
+import h5py
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -57,8 +62,6 @@ def _xp(*arrays):
     """The array module (jax.numpy or numpy) of the inputs."""
     for a in arrays:
         if type(a).__module__.startswith("jax"):
-            import jax.numpy as jnp
-
             return jnp
     return np
 
@@ -424,12 +427,6 @@ def write_plan_view(path, t_s, x_edges, y_edges, maps: dict, attrs: dict):
     and a rename): ``/t_s`` (F,), ``/x_edges_m`` (nx+1,), ``/y_edges_m`` (ny+1,) and one
     (F, nx, ny) dataset per map (float32, gzip; ``count`` int32), ``attrs`` as JSON in the
     root attribute ``attrs_json`` and the unit of each dataset in ``units_json``."""
-    import json
-    import os
-    from pathlib import Path
-
-    import h5py
-
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     units = {"t_s": "s", "x_edges_m": "m", "y_edges_m": "m", "log10_mu": "log10(Pa s)", "speed_m_s": "m/s"}
@@ -450,11 +447,6 @@ def write_plan_view(path, t_s, x_edges, y_edges, maps: dict, attrs: dict):
 
 def read_plan_view(path) -> dict:
     """The maps written by ``write_plan_view`` as numpy arrays (``attrs`` parsed)."""
-    import json
-    from pathlib import Path
-
-    import h5py
-
     p = Path(path)
     if p.is_dir():
         p = p / "plan_view.h5"
@@ -480,8 +472,6 @@ def plan_view_summary(result, path=None) -> dict:
     cell size h).  With ``path``, every frame's maps are written there (``write_plan_view``).
     Returns a JSON-ready dict (definitions in docs/output.md).
     """
-    import json
-
     cfg = json.loads(result["attrs"]["scene_config_json"])
     if int(cfg["domain.dim"]) != 3:
         raise ValueError(f"plan_view_summary: a 3D run is needed; this one is {cfg['domain.dim']}D")

@@ -1,4 +1,7 @@
-"""Command line: ``mpmjax scenes | run | rheometer | bench | study | calibrate | sweep``.
+"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | study |
+calibrate | sweep``: argument parsing and dispatch only; the work is done by the library
+(``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
+``calibration``.
 
 Exit status: 0 success, 2 invalid input (the message names the key, the value and the
 allowed range; also a ``--resume`` that does not match), 3 a run stopped by a failed health
@@ -10,46 +13,21 @@ interrupted by Ctrl-C (143 by SIGTERM; frames already written stay readable and
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
+import tomllib
 from pathlib import Path
 
-USAGE_ERROR = 2
+from calibration import cli as calcli
 
-
-class Progress:
-    """A one-line progress report with elapsed time and an estimate of the time left."""
-
-    def __init__(self, total: int, label: str, stream=sys.stderr):
-        self.total, self.label, self.stream = total, label, stream
-        self.t0 = time.perf_counter()
-        self.tty = stream.isatty()
-        self.last_pct = -1
-
-    def update(self, done: int, extra: str = ""):
-        el = time.perf_counter() - self.t0
-        eta = el / done * (self.total - done) if done else float("nan")
-        pct = int(100 * done / self.total)
-        bar = "#" * (pct // 5) + "." * (20 - pct // 5)
-        line = f"{self.label} [{bar}] {pct:3d}% {done}/{self.total} {extra} elapsed {el:6.1f} s, left ~{eta:6.1f} s"
-        if self.tty:
-            self.stream.write("\r" + line + ("\n" if done == self.total else ""))
-            self.stream.flush()
-        elif pct // 10 != self.last_pct // 10 or done == self.total:
-            self.stream.write(line + "\n")
-            self.stream.flush()
-        self.last_pct = pct
-
-
-def _fail(msg: str) -> int:
-    print(f"mpmjax: error: {msg}", file=sys.stderr)
-    return USAGE_ERROR
+from . import rheometer
+from ._schema import SCHEMA, SceneError, builtin_scenes
+from ._driver import ANIMATION_MAX_FRAMES, CHECKPOINT_EVERY, FAILED, Interrupted, fail, run_scene
+from ._health import RunFailure
+from .studies import bench, pareto, records, stress
+from .studies.tables import run_study
 
 
 def cmd_scenes(args) -> int:
-    from ._schema import SCHEMA, builtin_scenes
-
     if args.keys:
         for key, spec in SCHEMA.items():
             default = "(required)" if spec.default is not None and spec.default.__class__ is object else spec.default
@@ -61,502 +39,19 @@ def cmd_scenes(args) -> int:
                 rng += f"{', ' if rng else ''}<= {spec.hi}" if spec.hi is not None else ""
             print(f"{key:38s} [{spec.unit}] default={default!r} {rng}\n    {spec.doc}")
         return 0
-    import tomllib
-
     for name, path in sorted(builtin_scenes().items()):
         desc = tomllib.loads(path.read_text()).get("description", "").split(". ")[0]
         print(f"{name:24s} {desc}")
     return 0
 
 
-def _scenario_metrics(setup, state, times, kinetic) -> dict:
-    """summary.json scenario metrics (definitions in docs/output.md and mpmjax._metrics):
-    kinetic energy per frame, time to rest (1 % of the peak kinetic energy), mobilised
-    fraction (share of the final material displaced by more than one cell size h from where
-    it started or was released), the final free-surface profile along the runout axis (bins of
-    width h over the domain; null where empty) and its beach slope."""
-    import numpy as np
-
-    from . import _metrics
-
-    sc, info = setup.scene, setup.info
-    axis = info["runout_axis"]
-    # inflow pool particles are parked where they are released (half a layer behind the exit)
-    moved_from = np.asarray(setup.state.x)
-    x, act = np.asarray(state.x), np.asarray(state.active)
-    edges = np.arange(sc.lo[axis], sc.hi[axis] + 0.5 * sc.h, sc.h)
-    xc, top = _metrics.surface_profile(x, act, edges, info["particle_spacing_m"], axis=axis)
-    slope = _metrics.beach_slope(xc, top, bed=sc.lo[-1], min_depth_m=info["particle_spacing_m"])
-
-    def fin(a):
-        return float(a) if np.isfinite(a) else None
-
-    return {
-        "kinetic_energy_J": kinetic,
-        "kinetic_energy_unit": "J per metre of depth" if sc.dim == 2 else "J",
-        "time_to_rest_s": fin(_metrics.time_to_rest(times, kinetic, rel_threshold=0.01)),
-        "mobilised_fraction": fin(_metrics.mobilised_fraction(moved_from, x, act, sc.h, vol0=np.asarray(state.vol0))),
-        "mobilised_distance_m": sc.h,
-        "surface_profile_x_m": [float(a) for a in xc],
-        "surface_profile_z_m": [fin(a) for a in top],
-        "beach_slope": fin(slope),
-    }
-
-
-ANIMATION_MAX_FRAMES = 30  # images in animation.gif (evenly spaced over the saved frames)
-ANIMATION_DPI = 60  # animation.gif resolution (an 8 x 3.2 in figure: 480 x 192 pixels)
-
-
-def _write_animation(res, out: Path, dim: int, quiet: bool) -> Path:
-    """animation.gif of a finished run: particles coloured by viscosity (log scale), side view
-    in 2D, plan view in 3D; at most ANIMATION_MAX_FRAMES images; progress on stderr."""
-    from .plotting import animate
-
-    n = min(int(res["frames"]["t_s"].shape[0]), ANIMATION_MAX_FRAMES)
-    prog = None if quiet else Progress(n, "animation")
-    return animate(
-        res,
-        out / "animation.gif",
-        "mu",
-        view="plan" if dim == 3 else "side",
-        dpi=ANIMATION_DPI,
-        max_frames=ANIMATION_MAX_FRAMES,
-        progress=None if prog is None else (lambda i, _n: prog.update(min(i + 1, n))),
-    )
-
-
-CHECKPOINT_EVERY = 10  # frames between checkpoints (default of --checkpoint-every)
-FAILED = 3  # exit status of a run stopped by a failed health check (mpmjax._health)
-
-
-class Interrupted(KeyboardInterrupt):
-    """A run stopped by SIGINT (Ctrl-C) or SIGTERM; ``message`` says how to resume it."""
-
-    def __init__(self, signum: int, message: str = ""):
-        super().__init__(message)
-        self.signum, self.message = signum, message
-
-
-class _Signals:
-    """Turn SIGINT/SIGTERM into ``Interrupted`` and hold them back while a frame and its
-    checkpoint are being written (``with sig.hold():``), so that the files on disk always
-    match the state in memory.  Only installed in the main thread (Python delivers signals
-    there only)."""
-
-    def __init__(self):
-        import signal
-        import threading
-
-        self.pending = None
-        self.depth = 0
-        self.old = {}
-        if threading.current_thread() is threading.main_thread():
-            for s in (signal.SIGINT, signal.SIGTERM):
-                self.old[s] = signal.signal(s, self._handler)
-
-    def _handler(self, signum, frame):
-        if self.depth:
-            self.pending = signum
-        else:
-            raise Interrupted(signum)
-
-    def hold(self):
-        import contextlib
-
-        @contextlib.contextmanager
-        def cm():
-            self.depth += 1
-            try:
-                yield
-            finally:
-                self.depth -= 1
-            if not self.depth and self.pending is not None:
-                signum, self.pending = self.pending, None
-                raise Interrupted(signum)
-
-        return cm()
-
-    def restore(self):
-        import signal
-
-        for s, h in self.old.items():
-            signal.signal(s, h)
-
-
-_ADVANCE_CACHE: dict = {}
-
-
-def _compiled_advance(sc, state, params, n=None):
-    """The compiled one-frame advance for this scene, these array shapes and the buffer prefix
-    [0, n) it steps (default: all; see ``_simulate.make_prefix_advance``), kept for the
-    process (a few scenes' worth), so repeated runs of one scene (a resume, tests, notebooks)
-    compile once and run the very same programs."""
-    import jax
-
-    from ._simulate import make_prefix_advance
-
-    n = sc.n_particles if n is None else int(n)
-    leaves, tree = jax.tree_util.tree_flatten((state, params))
-    key = (sc, tree, tuple((a.shape, str(a.dtype)) for a in leaves), n)
-    if key not in _ADVANCE_CACHE:
-        if len(_ADVANCE_CACHE) >= 24:
-            _ADVANCE_CACHE.pop(next(iter(_ADVANCE_CACHE)))
-        _ADVANCE_CACHE[key] = make_prefix_advance(sc, n).lower(state, params).compile()
-    return _ADVANCE_CACHE[key]
-
-
-def resume_command(out: Path) -> str:
-    import shlex
-
-    return f"mpmjax run --resume {shlex.quote(str(out))}"
-
-
-def run_scene(
-    scene: str | None,
-    out: Path,
-    overrides: list[str] | None,
-    quiet: bool = False,
-    checkpoint_every: int = CHECKPOINT_EVERY,
-    resume: bool = False,
-    on_frame=None,
-    animate: bool = False,
-    staged: bool = True,
-) -> dict:
-    """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``
-    (3D scenes also plan_view.h5, plan_view.png and sections.png; with ``animate=True``
-    animation.gif: ``mpmjax run`` does that by default, the Python default is False).
-
-    Every ``checkpoint_every`` frames (0: never) the full state is written to
-    ``out/checkpoint.h5`` (atomically), and again when the run is interrupted.  With
-    ``resume=True`` the run continues from that checkpoint: ``result.h5`` is cut back to the
-    checkpoint frame and continued, and the results equal those of an uninterrupted run bit
-    for bit.  ``scene``/``overrides`` may then be ``None`` (taken from the checkpoint); if
-    given they must describe the same validated scene.
-
-    After each frame the state is checked (``mpmjax._health``); a failed check closes the
-    files (frames written so far stay readable; summary.json gets ``status: failed``) and
-    raises ``RunFailure`` naming the step, the time, the particle and the likely cause.
-    ``on_frame(frame, state)``, if given, is called after each frame is on disk.
-    ``staged=False`` steps the whole particle buffer in every frame (with a pipe inflow the
-    default steps only the released part; the results agree to float rounding, and a resumed
-    staged run is bit for bit the uninterrupted one).
-
-    Returns the summary dict.  Raises ``SceneError`` on invalid input (including a
-    checkpoint that does not match the scene) and ``Interrupted`` (a ``KeyboardInterrupt``)
-    on SIGINT/SIGTERM after closing the files and writing the checkpoint.
-    """
-    import jax
-    import jax.numpy as jnp
-    import numpy as np
-
-    from . import __version__, _health, _metrics
-    from ._schema import SceneError, load_scene
-    from ._build import build
-    from ._io import FrameWriter, atomic_write_text, config_hash, plot_result, read_checkpoint, read_result
-    from ._io import write_checkpoint as _write_ckpt
-    from ._observables import runout
-    from ._simulate import StagedAdvance
-    from ._xdmf import write_xdmf
-
-    out = Path(out)
-    ckpt_path = out / "checkpoint.h5"
-    ckpt = None
-    if resume:
-        if not ckpt_path.is_file():
-            done = (out / "result.h5").is_file() and _result_complete(out / "result.h5")
-            raise SceneError(
-                f"--resume {out}: "
-                + ("the run there is already complete; nothing to resume" if done else f"no {ckpt_path.name} there")
-            )
-        try:
-            ckpt = read_checkpoint(ckpt_path)
-        except (OSError, KeyError, ValueError) as e:
-            raise SceneError(f"--resume {out}: {ckpt_path} cannot be read: {e}") from None
-        meta = ckpt[3]
-        if scene is None:
-            scene, overrides = meta["scene_source"], meta["overrides"]
-        overrides = overrides or []
-    if scene is None:
-        scene = "dambreak-lab"
-    overrides = list(overrides or [])
-    source = str(Path(scene).resolve()) if Path(scene).is_file() else str(scene)
-    cfg = load_scene(scene, overrides)
-    chash = config_hash(cfg)
-    if ckpt is not None and ckpt[2] != chash:
-        old = ckpt[3].get("cfg", {})
-        diff = [k for k in sorted(set(old) | set(cfg)) if json.dumps(old.get(k)) != json.dumps(_jsonable(cfg.get(k)))]
-        shown = ", ".join(f"{k}: {old.get(k)!r} in the checkpoint, {_jsonable(cfg.get(k))!r} now" for k in diff[:6])
-        raise SceneError(
-            f"--resume {out}: the checkpoint was written for a different scene or different --set overrides "
-            f"(checkpoint: {ckpt[3]['scene_source']} {ckpt[3]['overrides']}; now: {source} {overrides}); "
-            f"differing keys: {shown or 'none found (the scene file changed)'}. Resume with the original scene "
-            f"and overrides (or none: `{resume_command(out)}`)"
-        )
-    setup = build(cfg)
-    sc, info = setup.scene, setup.info
-    out.mkdir(parents=True, exist_ok=True)
-    log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
-    log(
-        f"scene {cfg['name']}: {sc.dim}D, {sc.n_particles} particles, grid {sc.grid_shape}, h = {sc.h} m, "
-        f"dt = {sc.dt:.3g} s (wave limit {info['dt_wave_s']:.3g} s, viscous limit {info['dt_viscous_s']:.3g} s, "
-        f"{sc.viscous_update} viscous update), {sc.n_steps} steps to t = {sc.t_end:g} s"
-    )
-    t0 = time.perf_counter()
-    # a pipe inflow's parked pool is stepped only once released: each frame steps the buffer prefix
-    # that holds every particle active by its end (a few sizes, compiled here; _simulate.StagedAdvance)
-    advance = StagedAdvance(sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n))
-    first_frame = int(ckpt[1]) if ckpt is not None else 0
-    sizes = advance.sizes(first_frame)
-    for n in sizes:
-        advance.program(n)
-    compile_s = time.perf_counter() - t0
-    staged_note = (
-        f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
-        if sizes != [sc.n_particles]
-        else ""
-    )
-    log(f"compiled in {compile_s:.1f} s{staged_note}")
-    rho = float(setup.params.material.rho)
-    spacing, axis, origin = info["particle_spacing_m"], info["runout_axis"], info["runout_origin_m"]
-
-    def front(st):
-        # no active material yet (a pipe inflow before its start): the front is at the origin
-        return float(runout(st.x, st.active, axis, origin, spacing)) if bool(np.any(st.active)) else 0.0
-
-    def energy(st):
-        return float(_metrics.kinetic_energy(np.asarray(st.v), np.asarray(st.vol0), np.asarray(st.active), rho))
-
-    if ckpt is None:
-        state = setup.state
-        done = 0
-        acc = dict(
-            times=[0.0],
-            fronts=[front(state)],
-            kinetic=[energy(state)],
-            lost_reported=0,
-            n_outflow=0,
-            wall_s=0.0,
-            mass0=float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho,
-        )
-        ckpt_path.unlink(missing_ok=True)  # a stale checkpoint of an earlier run here
-    else:
-        st_np, done, _, meta = ckpt
-        state = jax.tree_util.tree_map(jnp.asarray, st_np)
-        acc = meta["acc"]
-        log(f"resuming {out} from the checkpoint at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s)")
-    last_ckpt = done if ckpt is not None else -1
-    meta_base = dict(scene_source=source, overrides=overrides, cfg=_jsonable(cfg), code_version=__version__)
-
-    def write_checkpoint(st, frame):
-        nonlocal last_ckpt
-        _write_ckpt(ckpt_path, st, frame, chash, dict(meta_base, acc=acc))
-        last_ckpt = frame
-
-    base_summary = {
-        "scene": cfg["name"],
-        "scene_source": source,
-        "overrides": overrides,
-        "dim": sc.dim,
-        "n_particles": sc.n_particles,
-        "n_steps": sc.n_steps,
-        "dt_s": sc.dt,
-        "t_end_s": sc.t_end,
-    }
-    start = done  # progress and its time estimate count this session's frames
-    prog = None if quiet else Progress(sc.n_frames - start, "run" if not start else f"run (from frame {start})")
-    sig = _Signals()
-    t_run = time.perf_counter()
-    wall0 = acc["wall_s"]
-    w = None
-    try:
-        try:
-            with sig.hold():
-                if ckpt is None:
-                    w = FrameWriter(out / "result.h5", setup, __version__)
-                    w.append(state)
-                else:
-                    try:
-                        w = FrameWriter(out / "result.h5", setup, __version__, keep_frames=done + 1)
-                    except (OSError, KeyError, ValueError) as e:
-                        raise SceneError(f"--resume {out}: {out / 'result.h5'} cannot be continued: {e}") from None
-            for i in range(done, sc.n_frames):
-                new = advance(i, state, setup.params)
-                jax.block_until_ready(new.x)
-                probs, outflow = _health.check(sc, cfg, state, new)
-                if probs:
-                    raise _health.failure(sc, setup.params, cfg, state, new, probs, i + 1, log=log)
-                with sig.hold():
-                    w.append(new)
-                    state, done = new, i + 1
-                    acc["times"].append(done * sc.steps_per_frame * sc.dt)
-                    acc["fronts"].append(front(state))
-                    acc["kinetic"].append(energy(state))
-                    acc["n_outflow"] += int(len(outflow))
-                    acc["wall_s"] = wall0 + time.perf_counter() - t_run
-                    if checkpoint_every and done % checkpoint_every == 0 and done < sc.n_frames:
-                        write_checkpoint(state, done)
-                lost = int(state.n_lost)
-                if lost > acc["lost_reported"]:
-                    log(
-                        f"\nnote: {lost - acc['lost_reported']} particle(s) left the domain through an open face by "
-                        f"t = {float(state.t):.3f} s (frame {done}); they were deactivated and are counted in "
-                        "summary.json n_lost"
-                    )
-                    acc["lost_reported"] = lost
-                if prog:
-                    prog.update(done - start, f"t = {float(state.t):7.3f} s, runout {acc['fronts'][-1]:.3f} m,")
-                if on_frame is not None:
-                    on_frame(done, state)
-        except KeyboardInterrupt as e:
-            signum = getattr(e, "signum", 2)
-            sig.depth += 1  # a second Ctrl-C while the files are closed is only recorded
-            if w is not None and done > last_ckpt:
-                write_checkpoint(state, done)
-            if w is not None:
-                w.close(False, status="interrupted")
-            msg = (
-                f"interrupted at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s): frames 0..{done} remain "
-                f"readable in {out / 'result.h5'}; the state is saved in {ckpt_path}. Resume with: "
-                f"{resume_command(out)}"
-            )
-            atomic_write_text(
-                out / "summary.json",
-                json.dumps(
-                    dict(base_summary, status="interrupted", frames_written=done, message=msg, complete=False),
-                    indent=2,
-                ),
-            )
-            raise Interrupted(signum, msg) from None
-        except _health.RunFailure as e:
-            sig.depth += 1
-            w.close(False, status="failed", error=str(e))
-            atomic_write_text(
-                out / "summary.json",
-                json.dumps(
-                    _jsonable(
-                        dict(
-                            base_summary,
-                            status="failed",
-                            error=str(e),
-                            failure=e.info,
-                            frames_written=done,
-                            times_s=acc["times"],
-                            runout_m=acc["fronts"],
-                            complete=False,
-                        )
-                    ),
-                    indent=2,
-                ),
-            )
-            raise
-        except BaseException:
-            if w is not None:
-                w.close(False, status="interrupted")
-            raise
-        with sig.hold():
-            w.close(True, status="complete")
-    finally:
-        sig.restore()
-    ckpt_path.unlink(missing_ok=True)  # complete: nothing left to resume
-    wall = acc["wall_s"]
-    times, fronts, kinetic = acc["times"], acc["fronts"], acc["kinetic"]
-    write_xdmf(out / "result.h5")  # result.xdmf: ParaView / VisIt sidecar of the closed result.h5
-    mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
-    summary = {
-        **base_summary,
-        "status": "complete",
-        "wall_s": wall,
-        "compile_s": compile_s,
-        # particle-steps actually stepped: a staged pipe pour steps a prefix of the buffer per frame
-        "particle_steps_per_s": sum(advance.schedule) * sc.steps_per_frame / wall,
-        "particles_stepped_mean": sum(advance.schedule) / len(advance.schedule),
-        "mass_initial_kg": acc["mass0"],
-        "mass_final_kg": mass1,
-        "mass_unit": "kg per metre of depth" if sc.dim == 2 else "kg",
-        "n_lost": int(state.n_lost),
-        "n_outflow": acc["n_outflow"],
-        "times_s": times,
-        "runout_m": fronts,
-        "final_runout_m": fronts[-1],
-        **_scenario_metrics(setup, state, times, kinetic),
-        "runout_definition": (
-            f"max over active particles of x[{axis}] + half the initial particle spacing ({spacing / 2:g} m), "
-            f"minus runout_origin_m = {origin:g} m"
-        ),
-        "dt_limits": {
-            k: info[k]
-            for k in (
-                "dt_wave_s",
-                "dt_viscous_s",
-                "dt_limit_s",
-                "wave_speed_m_s",
-                "velocity_scale_m_s",
-                "maxwell_G_pa",
-                "mu_max_pa_s",
-            )
-        },
-        "grid_shape": list(sc.grid_shape),
-        "cell_size_m": sc.h,
-        "code_version": __version__,
-        "jax_backend": jax.default_backend(),
-        "complete": True,
-    }
-    res = read_result(out / "result.h5")
-    written = ["result.h5", "result.xdmf", "summary.json", "result.png"]
-    if sc.dim == 3:
-        # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
-        summary.update(_metrics.plan_view_summary(res, out / "plan_view.h5"))
-        written.insert(3, "plan_view.h5")
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
-    plot_result(out / "result.png", res["frames"], summary, cfg["name"])
-    if sc.dim == 3:
-        from .plotting import plot_3d_overview
-
-        plot_3d_overview(res, out / "plan_view.h5", summary, out)
-        written += ["plan_view.png", "sections.png"]
-    if animate:
-        _write_animation(res, out, sc.dim, quiet)
-        written.append("animation.gif")
-    log(f"wrote {', '.join(str(out / f) for f in written)}")
-    if sc.dim == 3:
-        ch = summary["channels"]
-        log(
-            f"lobe width {summary['lobe_width_m']} m (thickness > {summary['lobe_width_threshold_m']:g} m); "
-            f"channels: {'yes, from t = ' + format(ch['first_time_s'], 'g') + ' s' if ch['detected'] else 'no'}"
-        )
-    log(
-        f"final runout {summary['final_runout_m']:.3f} m at t = {sc.t_end:g} s; wall {wall:.1f} s "
-        f"({summary['particle_steps_per_s']:.3g} particle-steps/s); lost particles: {summary['n_lost']}"
-    )
-    return summary
-
-
-def _jsonable(obj):
-    from ._io import _jsonable as j
-
-    return j(obj)
-
-
-def _result_complete(path: Path) -> bool:
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            return bool(f.attrs.get("complete", False))
-    except OSError:
-        return False
-
-
 def cmd_run(args) -> int:
-    from ._schema import SceneError
-    from ._health import RunFailure
-
     if args.checkpoint_every < 0:
-        return _fail(f"--checkpoint-every = {args.checkpoint_every} is invalid: allowed range: >= 0 frames (0: never)")
+        return fail(f"--checkpoint-every = {args.checkpoint_every} is invalid: allowed range: >= 0 frames (0: never)")
     if args.resume:
         out = Path(args.resume)
         if args.out and Path(args.out).resolve() != out.resolve():
-            return _fail(f"--out {args.out} and --resume {args.resume} name different folders; give one")
+            return fail(f"--out {args.out} and --resume {args.resume} name different folders; give one")
     else:
         out = Path(args.out) if args.out else Path("runs") / Path(args.scene or "dambreak-lab").stem
     try:
@@ -570,7 +65,7 @@ def cmd_run(args) -> int:
             animate=not args.no_animation,
         )
     except SceneError as e:
-        return _fail(str(e))
+        return fail(str(e))
     except RunFailure as e:
         print(
             f"\nmpmjax: {e}\nframes before the failure remain readable in {out / 'result.h5'}; "
@@ -588,27 +83,21 @@ def cmd_run(args) -> int:
 
 
 def cmd_rheometer(args) -> int:
-    from . import rheometer
-
     return rheometer.run_from_args(args)
 
 
 def cmd_bench(args) -> int:
-    from ._bench import run_bench
-
     try:
-        return run_bench(args)
+        return bench.run_bench(args)
     except ValueError as e:
-        return _fail(str(e))
+        return fail(str(e))
 
 
 def cmd_study(args) -> int:
-    from ._studies import run_study
-
     try:
         return run_study(args.name, Path(args.out))
     except ValueError as e:
-        return _fail(str(e))
+        return fail(str(e))
 
 
 def main(argv=None) -> int:
@@ -649,40 +138,25 @@ def main(argv=None) -> int:
         help=f"do not write OUT/animation.gif (by default a GIF of at most {ANIMATION_MAX_FRAMES} frames)",
     )
     pr.set_defaults(fn=cmd_run)
-    try:
-        from . import rheometer
-
-        prh = sub.add_parser("rheometer", help="0-D Coussot rheometer: viscosity vs time and flow curves")
-        rheometer.add_arguments(prh)
-        prh.set_defaults(fn=cmd_rheometer)
-    except ImportError:  # pragma: no cover
-        pass
+    prh = sub.add_parser("rheometer", help="0-D Coussot rheometer: viscosity vs time and flow curves")
+    rheometer.add_arguments(prh)
+    prh.set_defaults(fn=cmd_rheometer)
     pb = sub.add_parser("bench", help="measure particle-steps/s, scaling, gradient/forward time and vmap batching")
-    from . import _bench
-
-    _bench.add_arguments(pb)
+    bench.add_arguments(pb)
     pb.set_defaults(fn=cmd_bench)
-    from . import _stress
-
     pss = sub.add_parser("stress", help="robustness cases (stiff, viscous, field scale, slope, drop, 100k steps)")
-    _stress.add_arguments(pss)
-    pss.set_defaults(fn=_stress.cmd_stress)
-    from . import _records
-
+    stress.add_arguments(pss)
+    pss.set_defaults(fn=stress.cmd_stress)
     prec = sub.add_parser("records", help="run the thesis's record scenes; our figures next to the thesis's (table)")
-    _records.add_arguments(prec)
-    prec.set_defaults(fn=_records.cmd_records)
-    from . import _pareto
-
+    records.add_arguments(prec)
+    prec.set_defaults(fn=records.cmd_records)
     ppa = sub.add_parser("pareto", help="error against run time of the lab dam break numerics (Pareto front)")
-    _pareto.add_arguments(ppa)
-    ppa.set_defaults(fn=_pareto.cmd_pareto)
+    pareto.add_arguments(ppa)
+    ppa.set_defaults(fn=pareto.cmd_pareto)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
     pst.set_defaults(fn=cmd_study)
-    from calibration import cli as calcli
-
     pc = sub.add_parser("calibrate", help="fit material parameters to measured height profiles (optax, gradients)")
     calcli.add_calibrate_arguments(pc)
     pc.set_defaults(fn=calcli.cmd_calibrate)

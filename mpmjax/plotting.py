@@ -16,6 +16,8 @@ into a figure of your own.
   (bin-mean log10 viscosity, speed, thickness); ``section(result, frame, field, along=)``:
   a side (x-z) or transverse (y-z) section; ``plot_3d_overview``: the ``plan_view.png`` and
   ``sections.png`` that ``mpmjax run`` writes.
+* ``plot_result(path_png, frames, summary, title)``: the ``result.png`` that ``mpmjax run``
+  writes (side views at ~1 s, ~5 s and the end, runout against time).
 
 Fields (``FIELDS``): ``mu`` effective viscosity [Pa·s] (log colour scale), ``lambda``
 Coussot structure parameter [-], ``speed`` |v| [m/s], ``vx`` and the vertical velocity
@@ -29,7 +31,13 @@ import json
 import math
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
+
+from . import _metrics
+from ._io import read_result
+from ._observables import height_profile
+from ._observables import runout as _runout
 
 __all__ = [
     "FIELDS",
@@ -40,6 +48,7 @@ __all__ = [
     "particles",
     "plan_map",
     "plot_3d_overview",
+    "plot_result",
     "profile_at",
     "profiles",
     "runout",
@@ -66,8 +75,6 @@ def load(result) -> dict:
         if not {"attrs", "frames"} <= set(result):
             raise ValueError("result: expected the dict of mpmjax._io.read_result (keys 'attrs', 'frames', ...)")
         return result
-    from ._io import read_result
-
     p = Path(result)
     if p.is_dir():
         p = p / "result.h5"
@@ -154,6 +161,7 @@ def _label(res, field: str) -> str:
 
 
 def _make_norm(field: str, values):
+    # matplotlib only when a plot is made (optional heavy import)
     from matplotlib.colors import LogNorm, Normalize
 
     vals = np.asarray(values, float)
@@ -193,6 +201,7 @@ def particles(result, frame: int = -1, field: str = "mu", ax=None, *, view: str 
     Returns the Axes; its first collection is the scatter (one point per active particle,
     colour values = the stored field) and ``ax.figure`` holds the colour bar.
     """
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
 
     res = load(result)
@@ -263,8 +272,6 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
     (default: 201 stations over the domain) with bandwidth ``bandwidth_m`` (default one
     cell), the depth-integrated thickness that ``mpmjax calibrate`` fits, using rest volumes.
     """
-    from . import _metrics
-
     res = load(result)
     k = _frame_index(res, frame)
     g = _geometry(res)
@@ -285,9 +292,6 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
     if method == "kernel":
         if g["dim"] != 2:
             raise ValueError(f"method = 'kernel' is for 2D results; this one is {g['dim']}D (allowed: 'surface')")
-        import jax.numpy as jnp
-
-        from ._observables import height_profile
 
         xs = np.linspace(g["lo"][ax_], g["hi"][ax_], 201) if x_m is None else np.asarray(x_m, float)
         bw = g["h"] if bandwidth_m is None else float(bandwidth_m)
@@ -312,6 +316,7 @@ def profiles(result, times=None, data=None, ax=None, *, method: str = "surface",
         as calibrated); see ``profile_at``.
     Returns the Axes (one line per time, labelled with the frame's actual time).
     """
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
 
     res = load(result)
@@ -353,8 +358,6 @@ def profiles(result, times=None, data=None, ax=None, *, method: str = "surface",
 def runout(result) -> tuple[np.ndarray, np.ndarray]:
     """(times [s], front position [m]) of every saved frame: ``mpmjax.runout`` with the run's
     axis, origin and particle spacing (0 where no material is active yet, as in summary.json)."""
-    from ._observables import runout as _runout
-
     res = load(result)
     g = _geometry(res)
     fr = res["frames"]
@@ -366,6 +369,7 @@ def runout(result) -> tuple[np.ndarray, np.ndarray]:
 
 def runout_vs_time(result, ax=None, **plot_kw):
     """Front position (runout [m], see ``runout``) against time [s]; returns the Axes."""
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
 
     res = load(result)
@@ -403,6 +407,7 @@ def animate(
     last included.  ``progress(i, n)``, if given, is called as image i of n is drawn.
     Returns the path (written to a temporary name and renamed, so an interrupted call leaves
     no partial GIF)."""
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
     from matplotlib.animation import FuncAnimation, PillowWriter
 
@@ -454,6 +459,7 @@ def animate(
         title.set_text(f"{name}: t = {t[k]:.3g} s")
         return (sc, title)
 
+    # matplotlib only when a plot is made (optional heavy import)
     from matplotlib.cm import ScalarMappable
 
     fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=ax, label=_label(res, field))
@@ -485,11 +491,9 @@ def load_plan_view(maps) -> dict:
     as is; a path to ``plan_view.h5`` (or to the run folder holding it) is read."""
     if isinstance(maps, dict):
         return maps
-    from ._metrics import read_plan_view
-
     p = Path(maps)
     if (p / "plan_view.h5").exists() if p.is_dir() else p.exists():
-        return read_plan_view(p)
+        return _metrics.read_plan_view(p)
     raise FileNotFoundError(f"maps: {p} is not a plan_view.h5 (written by `mpmjax run` for 3D scenes)")
 
 
@@ -501,6 +505,7 @@ def plan_map(maps, frame: int = -1, quantity: str = "log10_mu", ax=None, *, norm
       maps: ``plan_view.h5`` path, run folder or the dict of ``read_plan_view``.
       frame: frame index (-1 = last).
     Returns the Axes (its first collection is the ``pcolormesh``)."""
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
 
     d = load_plan_view(maps)
@@ -539,6 +544,7 @@ def section(result, frame: int = -1, field: str = "mu", ax=None, *, along: str =
     (default: the y of the material's centre); ``along="y"``: a transverse section (y against z)
     at x = ``at_m`` (default: the centre).  ``half_width_m`` defaults to one cell size.
     Returns the Axes."""
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
 
     res = load(result)
@@ -589,6 +595,7 @@ def plot_3d_overview(result, maps, summary: dict, out_dir) -> list[Path]:
       material's centre and the transverse section at the widest point of the lobe, coloured
       by viscosity, and the side section coloured by the structure parameter λ (Coussot scenes).
     Returns the paths written."""
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -650,3 +657,44 @@ def plot_3d_overview(result, maps, summary: dict, out_dir) -> list[Path]:
     fig.savefig(p2, dpi=80)
     plt.close(fig)
     return [p1, p2]
+
+
+def plot_result(path_png, frames: dict, summary: dict, title: str, snapshot_times=(1.0, 5.0)):
+    """Side views at ~1 s, ~5 s (as in thesis Figs. 34-42) and the final time, coloured by
+    viscosity on one log scale, plus runout against time.  Vertical scale exaggerated."""
+    # matplotlib only when a plot is made (optional heavy import)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    t = frames["t_s"]
+    picks = sorted({int(np.argmin(np.abs(t - ts))) for ts in snapshot_times if ts < t[-1]} | {len(t) - 1})
+    dim = frames["x_m"].shape[-1]
+    vert = dim - 1
+    act_all = frames["active"][picks].astype(bool)
+    mu_sel = np.clip(frames["mu_pa_s"][picks][act_all], 1e-9, None)
+    lo, hi = (mu_sel.min(), mu_sel.max()) if mu_sel.size else (1.0, 10.0)
+    norm = LogNorm(vmin=lo, vmax=max(hi, lo * 1.001))
+    xs = frames["x_m"][picks][act_all]
+    xmax, zmax = float(xs[:, 0].max()), float(xs[:, vert].max())
+    fig, axes = plt.subplots(len(picks) + 1, 1, figsize=(10, 2.0 * len(picks) + 2.5))
+    for ax, k in zip(axes, picks):
+        act = frames["active"][k].astype(bool)
+        x = frames["x_m"][k][act]
+        sc = ax.scatter(x[:, 0], x[:, vert], c=frames["mu_pa_s"][k][act], s=1.5, cmap="viridis", norm=norm)
+        ax.set_xlim(float(xs[:, 0].min()) - 0.02 * xmax, 1.05 * xmax)
+        ax.set_ylim(float(xs[:, vert].min()) - 0.05 * zmax, 1.15 * zmax)
+        ax.set_ylabel(("y" if vert == 1 else "z") + " [m]")
+        ax.set_title(f"{title}: t = {t[k]:.2f} s (vertical scale exaggerated)", fontsize=9)
+        fig.colorbar(sc, ax=ax, label="μ [Pa·s]")
+    axes[len(picks) - 1].set_xlabel("x [m]")
+    axr = axes[-1]
+    axr.plot(summary["times_s"], summary["runout_m"], "-o", ms=3)
+    axr.set_xlabel("time [s]")
+    axr.set_ylabel("runout [m]")
+    axr.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path_png, dpi=110)
+    plt.close(fig)

@@ -1,6 +1,6 @@
 """Every built-in scene runs, coarsely and briefly, within physics-derived bounds.
 
-Each scene of ``mpmjax.builtin_scenes()`` is run through ``cli.run_scene`` at a coarse
+Each scene of ``mpmjax.builtin_scenes()`` is run through ``mpmjax.run_scene`` at a coarse
 cell size and a short end time (overrides below; each well under 20 s on 2 CPU cores) and
 its summary is checked against bounds that need no reference run:
 
@@ -33,7 +33,6 @@ import numpy as np
 import pytest
 
 import mpmjax
-from mpmjax import cli
 
 # Coarse, short CI runs. The cell size must divide the domain on every axis.
 CI_OVERRIDES = {
@@ -115,7 +114,7 @@ def test_thesis_parameters():
 def test_builtin_scene_coarse_run_is_physical(name, tmp_path):
     over = _overrides(name)
     cfg = mpmjax.load_scene(name, over)
-    s = cli.run_scene(name, tmp_path, over, quiet=True)
+    s = mpmjax.run_scene(name, tmp_path, over, quiet=True)
     assert s["complete"]
 
     # mass: fixed particle masses, none lost; start mass = rho x body volume (per metre in 2D)

@@ -100,7 +100,7 @@ def test_blow_up_with_lost_particles_is_a_failure(tmp_path, capsys):
         "numerics.shape=linear",
     ]
     with pytest.raises(_health.RunFailure) as e:
-        cli.run_scene("dambreak-lab", tmp_path, over, quiet=True)
+        m.run_scene("dambreak-lab", tmp_path, over, quiet=True)
     f = e.value.info
     assert (
         f["kind"] == "lost" and "particle(s) lost" in str(e.value) and f"first particle {f['particle']}" in str(e.value)
@@ -146,7 +146,7 @@ hi_m = [0.5, 0.2]
 velocity_m_s = [3.0, 0.0]
 """
     )
-    s = cli.run_scene(str(scene), tmp_path / "run", [], quiet=True)
+    s = m.run_scene(str(scene), tmp_path / "run", [], quiet=True)
     assert s["status"] == "complete"
     assert 0 < s["n_outflow"] == s["n_lost"] < s["n_particles"]
 

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from mpmjax import load_scene, run_scene
 from mpmjax import SceneError, build, validate
 from mpmjax._simulate import run
 
@@ -157,13 +158,11 @@ def test_bad_inflow_is_a_scene_error(change, match):
 
 def test_flume_deposition_scene_coarse(tmp_path):
     """The built-in Mizani flume at 8 cm cells for its first 30 s, through the CLI runner."""
-    from mpmjax import cli, load_scene
-
     over = ["domain.cell_size_m=0.08", "time.t_end_s=30.0", "time.n_frames=6"]
     cfg = load_scene("flume-deposition", over)
     # 773 L over 1277 s through a 0.59 m wide flume, per metre of width
     assert cfg["inflow.flow_rate_m3_s"] == pytest.approx(0.773 / 1277.0 / 0.59, rel=1e-4)
-    s = cli.run_scene("flume-deposition", tmp_path, over, quiet=True)
+    s = run_scene("flume-deposition", tmp_path, over, quiet=True)
     assert s["complete"] and s["n_lost"] == 0
     rho, q = cfg["material.density_kg_m3"], cfg["inflow.flow_rate_m3_s"]
     # released mass = rho Q t within one layer (layer_dt ~ 1.95 s at 8 cm cells: 6.5 %)
@@ -182,11 +181,9 @@ def test_flume_deposition_scene_coarse(tmp_path):
 
 def test_field_pipe_3d_scene_coarse(tmp_path):
     """The thesis's field pipe deposition (3D) at 1 m cells for its first 12 s."""
-    from mpmjax import cli, load_scene
-
     over = ["domain.cell_size_m=1.0", "time.t_end_s=12.0", "time.n_frames=3"]
     cfg = load_scene("field-pipe-3d", over)
-    s = cli.run_scene("field-pipe-3d", tmp_path, over, quiet=True)
+    s = run_scene("field-pipe-3d", tmp_path, over, quiet=True)
     assert s["complete"] and s["n_lost"] == 0
     # released mass = rho Q t within one layer (0.5 m spacing at 1.6 m/s: 0.31 s, 2.6 % of 12 s)
     rho, q = cfg["material.density_kg_m3"], cfg["inflow.flow_rate_m3_s"]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mpmjax import _metrics as M
+from mpmjax import load_scene, run_scene
 
 
 def test_kinetic_energy_exact_numpy_and_jax():
@@ -87,11 +88,9 @@ def test_beach_slope_exact_on_a_plane_and_default_window_trims_the_ends():
 
 def test_summary_metrics_of_a_bingham_slump(tmp_path):
     """run_scene's summary.json metrics on a coarse Bingham dam break that comes to rest."""
-    from mpmjax import cli, load_scene
-
     over = ["domain.cell_size_m=0.02", "time.t_end_s=2.5", "time.n_frames=25"]
     cfg = load_scene("bingham-dambreak", over)
-    s = cli.run_scene("bingham-dambreak", tmp_path, over, quiet=True)
+    s = run_scene("bingham-dambreak", tmp_path, over, quiet=True)
     e = np.asarray(s["kinetic_energy_J"])
     assert e[0] == 0.0 and e.max() > 0.0 and len(e) == len(s["times_s"])
     # the slump stops (docs/scenarios.md: ~1.4 s at h = 0.01 m; measured here 1.1 s at 0.02 m);

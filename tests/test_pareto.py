@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from mpmjax import _pareto
+from mpmjax.studies import pareto
 
 
 def test_pareto_front_small_example():
@@ -17,14 +17,14 @@ def test_pareto_front_small_example():
     # the nan point is never on the front
     cost = [1.0, 2.0, 5.0, 3.0, 5.0, 0.5]
     err = [9.0, 4.0, 3.0, 5.0, 1.0, math.nan]
-    assert _pareto.pareto_front(cost, err) == [True, True, False, False, True, False]
+    assert pareto.pareto_front(cost, err) == [True, True, False, False, True, False]
 
 
 def test_pareto_front_matches_brute_force():
     rng = np.random.default_rng(0)
     for _ in range(20):
         c, e = rng.integers(0, 6, 15).astype(float), rng.integers(0, 6, 15).astype(float)  # with ties
-        front = _pareto.pareto_front(c, e)
+        front = pareto.pareto_front(c, e)
         for i in range(c.size):
             dominated = any(c[j] <= c[i] and e[j] <= e[i] and (c[j] < c[i] or e[j] < e[i]) for j in range(c.size))
             assert front[i] == (not dominated)
@@ -34,7 +34,7 @@ def test_profile_rms_counts_wetted_bins_only():
     ref = np.array([0.0, 0.02, 0.02, 0.0, 0.0])
     run = np.array([0.0, 0.02, 0.01, 0.01, 0.0])
     # wetted in either: bins 1, 2, 3; differences 0, 10 mm, 10 mm
-    assert _pareto.profile_rms_mm(run, ref) == pytest.approx(math.sqrt(200.0 / 3.0))
+    assert pareto.profile_rms_mm(run, ref) == pytest.approx(math.sqrt(200.0 / 3.0))
 
 
 class _Stop(Exception):
@@ -51,12 +51,12 @@ def test_ci_sweep(tmp_path):
             raise _Stop
 
     with pytest.raises(_Stop):
-        _pareto.run_pareto("ci", tmp_path, log=stop_after_two)
+        pareto.run_pareto("ci", tmp_path, log=stop_after_two)
     jpath = tmp_path / "bench" / "pareto_dambreak_lab.json"
     part = json.loads(jpath.read_text())
     assert [r["label"] for r in part["rows"]] == ["ref h=0.01", "h=0.04"]
 
-    doc = _pareto.run_pareto("ci", tmp_path, log=lambda m: None)
+    doc = pareto.run_pareto("ci", tmp_path, log=lambda m: None)
     rows = {r["label"]: r for r in doc["rows"]}
     assert rows["ref h=0.01"].get("reused") and rows["h=0.04"].get("reused")
     assert not rows["h=0.02"].get("reused")

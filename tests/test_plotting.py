@@ -1,4 +1,4 @@
-"""mpmjax.plotting on a coarse dam break run once through the CLI runner (``cli.run_scene``).
+"""mpmjax.plotting on a coarse dam break run once through the CLI runner (``mpmjax.run_scene``).
 
 The checks compare what is drawn with what is stored in result.h5: one scatter point per
 active particle at its stored position, colour values equal to the stored field, profiles
@@ -13,8 +13,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from PIL import Image  # noqa: E402
 
-from mpmjax import _metrics, plotting  # noqa: E402
+from calibration.data import Profile  # noqa: E402
+from mpmjax import _metrics, plotting, run_scene  # noqa: E402
 from mpmjax._io import read_result  # noqa: E402
 
 # 2 m x 0.24 m; 0.2 m BASE Coussot block at 2 cm cells (400 particles); 0.5 s of the collapse, 5 frames
@@ -23,10 +25,8 @@ OVERRIDES = ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5"]
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from mpmjax import cli
-
     out = tmp_path_factory.mktemp("plot")
-    summary = cli.run_scene("dambreak-lab", out, OVERRIDES, quiet=True)
+    summary = run_scene("dambreak-lab", out, OVERRIDES, quiet=True)
     return out, summary, read_result(out / "result.h5")
 
 
@@ -101,8 +101,6 @@ def test_runout_vs_time_matches_summary(run):
 
 
 def test_profiles_with_measured_data(run, tmp_path):
-    from calibration.data import Profile
-
     _, summary, res = run
     data = [
         Profile(np.array([0.05, 0.15, 0.25]), np.array([0.2, 0.2, 0.0]), t_s=0.0),
@@ -145,8 +143,6 @@ def test_profiles_with_measured_data(run, tmp_path):
 
 
 def test_animate_writes_one_image_per_frame(run, tmp_path):
-    from PIL import Image
-
     _, _, res = run
     path = plotting.animate(res, tmp_path / "run.gif", field="speed", fps=4)
     with Image.open(path) as im:

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import mpmjax
-from mpmjax import _records, cli
+from mpmjax import cli
+from mpmjax.studies import records
 
 # the thesis figures the table must carry (REFERENCE.md, "Thesis scenarios")
 THESIS = {
@@ -41,9 +42,9 @@ def test_scale_study_overrides_scale_geometry_time_and_stiffness():
     wave speed c ~ sqrt(L) and the time step ~ h / c ~ sqrt(L), so every scale takes the same
     number of steps with the same number of particles."""
     steps, parts = set(), set()
-    for L in _records.SCALES_M:
-        for mat in _records.SCALE_MATERIALS:
-            cfg = mpmjax.load_scene("scale-study", _records.scale_overrides(L, mat))
+    for L in records.SCALES_M:
+        for mat in records.SCALE_MATERIALS:
+            cfg = mpmjax.load_scene("scale-study", records.scale_overrides(L, mat))
             (body,) = cfg["bodies"]
             assert body["hi_m"] == [L, L]
             assert cfg["domain.hi_m"] == pytest.approx([40 * L, 1.25 * L], rel=1e-12)
@@ -68,9 +69,9 @@ def test_scale_study_overrides_scale_geometry_time_and_stiffness():
     assert parts == {1024}
     assert max(steps) - min(steps) <= 1, steps
     with pytest.raises(ValueError, match="material 'herschel'"):
-        _records.scale_overrides(1.0, "herschel")
+        records.scale_overrides(1.0, "herschel")
     with pytest.raises(ValueError, match="block size -1"):
-        _records.scale_overrides(-1, "bingham")
+        records.scale_overrides(-1, "bingham")
 
 
 def test_bingham_funnel_pours_the_dambreak_volume_in_11_s():
@@ -122,18 +123,18 @@ def _check_run(name, run, cfg):
 
 
 def test_records_ci_table_has_every_row(tmp_path):
-    doc = _records.run_records([], "ci", tmp_path)
+    doc = records.run_records([], "ci", tmp_path)
     on_disk = json.loads((tmp_path / "records.json").read_text())
     assert on_disk["rows"] == json.loads(json.dumps(doc["rows"]))
     md = (tmp_path / "records.md").read_text()
     rows = {r["record"]: r for r in doc["rows"]}
     # every record, every scale-study ratio
-    for L in _records.SCALES_M:
+    for L in records.SCALES_M:
         for m in ("Coussot 1 (n = 2.5)", "Coussot 2 (n = 1.076)"):
             assert f"scale study {L:g} m, {m} / Bingham" in rows
     assert set(THESIS) <= set(rows)
     assert "funnel: final runout" in rows
-    assert {r["scene"] for r in doc["rows"]} == set(_records.RECORD_NAMES)
+    assert {r["scene"] for r in doc["rows"]} == set(records.RECORD_NAMES)
     for name, r in rows.items():
         assert r["ours"] is not None and math.isfinite(r["ours"]), name
         assert r["thesis_text"], name
@@ -142,7 +143,7 @@ def test_records_ci_table_has_every_row(tmp_path):
         if name in THESIS:
             assert r["thesis"] == THESIS[name], name
     # 4 scales x 3 materials + one run per other record
-    assert len(doc["runs"]) == 12 + len(_records.RECORD_NAMES) - 1
+    assert len(doc["runs"]) == 12 + len(records.RECORD_NAMES) - 1
     for key, run in doc["runs"].items():
         _check_run(key, run, mpmjax.load_scene(run["scene"], run["overrides"]))
     # at 0.2 m the three Table 9 materials collapse alike (the thesis chose them so); in the

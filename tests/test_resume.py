@@ -19,6 +19,7 @@ import h5py
 import numpy as np
 import pytest
 
+import mpmjax
 from mpmjax import cli
 from mpmjax._io import read_checkpoint, read_result
 
@@ -52,7 +53,7 @@ def _same_summary(a, b):
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory):
     out = tmp_path_factory.mktemp("ref")
-    s = cli.run_scene(SCENE, out, OVER, quiet=True, checkpoint_every=3)
+    s = mpmjax.run_scene(SCENE, out, OVER, quiet=True, checkpoint_every=3)
     assert s["status"] == "complete" and s["complete"]
     assert not (out / "checkpoint.h5").exists()  # a complete run leaves nothing to resume
     return out
@@ -67,15 +68,15 @@ def _stop_at(k, exc):
 
 
 def test_same_input_twice_gives_identical_results(reference, tmp_path):
-    cli.run_scene(SCENE, tmp_path, OVER, quiet=True, checkpoint_every=0)
+    mpmjax.run_scene(SCENE, tmp_path, OVER, quiet=True, checkpoint_every=0)
     _assert_same_result(reference / "result.h5", tmp_path / "result.h5")
     _same_summary(reference, tmp_path)
     assert read_result(tmp_path / "result.h5")["frames"]["x_m"].shape == (N_FRAMES + 1, 400, 2)
 
 
 def test_interrupt_then_resume_is_bit_for_bit(reference, tmp_path):
-    with pytest.raises(cli.Interrupted) as e:
-        cli.run_scene(SCENE, tmp_path, OVER, quiet=True, checkpoint_every=3, on_frame=_stop_at(7, KeyboardInterrupt()))
+    with pytest.raises(mpmjax.Interrupted) as e:
+        mpmjax.run_scene(SCENE, tmp_path, OVER, quiet=True, checkpoint_every=3, on_frame=_stop_at(7, KeyboardInterrupt()))
     assert e.value.signum == signal.SIGINT
     assert f"mpmjax run --resume {tmp_path}" in e.value.message and "frame 7/20" in e.value.message
     # the partial file is readable and holds exactly frames 0..7 of the uninterrupted run
@@ -92,7 +93,7 @@ def test_interrupt_then_resume_is_bit_for_bit(reference, tmp_path):
     assert frame == 7 and meta["scene_source"] == SCENE and meta["overrides"] == OVER
     np.testing.assert_array_equal(state.x, ref["frames"]["x_m"][7])
 
-    s = cli.run_scene(None, tmp_path, None, quiet=True, resume=True)  # scene and overrides from the checkpoint
+    s = mpmjax.run_scene(None, tmp_path, None, quiet=True, resume=True)  # scene and overrides from the checkpoint
     assert s["status"] == "complete"
     _assert_same_result(reference / "result.h5", tmp_path / "result.h5")
     _same_summary(reference, tmp_path)
@@ -103,19 +104,19 @@ def test_crash_after_a_checkpoint_resumes_from_it(reference, tmp_path):
     # a crash (here an error raised after frame 11) does not write a checkpoint: the last
     # periodic one (frame 9) is used and result.h5, which holds frames 0..11, is cut back to 0..9
     with pytest.raises(RuntimeError, match="power cut"):
-        cli.run_scene(
+        mpmjax.run_scene(
             SCENE, tmp_path, OVER, quiet=True, checkpoint_every=3, on_frame=_stop_at(11, RuntimeError("power cut"))
         )
     assert read_result(tmp_path / "result.h5")["frames"]["t_s"].shape == (12,)
     assert read_checkpoint(tmp_path / "checkpoint.h5")[1] == 9
-    cli.run_scene(SCENE, tmp_path, OVER, quiet=True, resume=True)  # same scene and overrides given again
+    mpmjax.run_scene(SCENE, tmp_path, OVER, quiet=True, resume=True)  # same scene and overrides given again
     _assert_same_result(reference / "result.h5", tmp_path / "result.h5")
     _same_summary(reference, tmp_path)
 
 
 def test_resume_refuses_another_scene(tmp_path, capsys):
-    with pytest.raises(cli.Interrupted):
-        cli.run_scene(SCENE, tmp_path, OVER, quiet=True, on_frame=_stop_at(2, KeyboardInterrupt()))
+    with pytest.raises(mpmjax.Interrupted):
+        mpmjax.run_scene(SCENE, tmp_path, OVER, quiet=True, on_frame=_stop_at(2, KeyboardInterrupt()))
     other = OVER + ["material.mu0_pa_s=5"]
     argv = ["run", SCENE, "--quiet", "--no-animation", "--resume", str(tmp_path)] + [
         a for o in other for a in ("--set", o)

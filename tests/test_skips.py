@@ -17,7 +17,8 @@ import jax
 import numpy as np
 import pytest
 
-from mpmjax import _simulate, cli
+import mpmjax
+from mpmjax import _driver, _simulate
 from mpmjax import build, load_scene, validate
 from mpmjax._io import read_checkpoint, read_result
 from mpmjax._simulate import StagedAdvance, capacity_schedule
@@ -71,7 +72,7 @@ def _run(pour_file, out, staged, **kw):
     old = _simulate.MIN_STAGE
     _simulate.MIN_STAGE = MIN
     try:
-        return cli.run_scene(str(pour_file), out, [], quiet=True, staged=staged, **kw)
+        return mpmjax.run_scene(str(pour_file), out, [], quiet=True, staged=staged, **kw)
     finally:
         _simulate.MIN_STAGE = old
 
@@ -140,14 +141,14 @@ def test_staged_run_resumes_bit_for_bit(runs, pour_file, tmp_path):
         if frame == 3:  # mid-pour, on the middle stage
             raise KeyboardInterrupt
 
-    with pytest.raises(cli.Interrupted):
+    with pytest.raises(mpmjax.Interrupted):
         _run(pour_file, tmp_path, True, checkpoint_every=2, on_frame=stop)
     state, frame, _, _ = read_checkpoint(tmp_path / "checkpoint.h5")
     assert frame == 3 and np.asarray(state.x).shape == (140, 2)  # the whole buffer is checkpointed
     old = _simulate.MIN_STAGE
     _simulate.MIN_STAGE = MIN
     try:
-        cli.run_scene(None, tmp_path, None, quiet=True, resume=True)
+        mpmjax.run_scene(None, tmp_path, None, quiet=True, resume=True)
     finally:
         _simulate.MIN_STAGE = old
     a, b = _datasets(d_st / "result.h5"), _datasets(tmp_path / "result.h5")
@@ -163,7 +164,7 @@ def test_a_short_prefix_falls_back_to_the_whole_buffer(pour, runs):
     sc, st0, p = pour.scene, pour.state, pour.params
 
     def compiled(n):  # the programs the command-line runs above compiled (process cache)
-        return cli._compiled_advance(sc, st0, p, n)
+        return _driver._compiled_advance(sc, st0, p, n)
 
     full = compiled(sc.n_particles)
     adv = StagedAdvance(sc, min_size=MIN, compile=compiled)

@@ -1,7 +1,7 @@
 """Stress cases (issue 6), coarse version (``mpmjax stress --size ci``): every case must stay
 finite, lose no particle, keep its mass and keep its kinetic energy below what gravity released.
 
-The criteria and their tolerances are defined (and justified) in ``mpmjax._stress``; each is
+The criteria and their tolerances are defined (and justified) in ``mpmjax.studies.stress``; each is
 checked at every step inside the scan.  The coarse cases run at h = 0.02 m for 1 s (the field
 case at h = 4 m for 40 s; the 100 000-step case shortened to 2 000 steps), about 30 s in all.
 """
@@ -11,7 +11,9 @@ import math
 
 import pytest
 
-from mpmjax import _stress
+from mpmjax import build
+from mpmjax.cli import main
+from mpmjax.studies import stress
 
 # Cases whose volume ratio leaves the bound, recorded and explained in docs/performance.md: with
 # the thesis's kappa = 15 kPa the sound speed sqrt(kappa/rho) = 2.8 m/s is below the speeds a 1 m
@@ -25,10 +27,10 @@ SUPERSONIC = {"slope-30deg", "drop-1m"}
 
 @pytest.fixture(scope="module")
 def results():
-    return {r["case"]: r for r in _stress.run_stress("ci")}
+    return {r["case"]: r for r in stress.run_stress("ci")}
 
 
-@pytest.mark.parametrize("name", _stress.CASE_NAMES)
+@pytest.mark.parametrize("name", stress.CASE_NAMES)
 def test_case_stays_finite_keeps_its_mass_and_loses_nothing(results, name):
     r = results[name]
     assert not r["nan"]
@@ -38,13 +40,13 @@ def test_case_stays_finite_keeps_its_mass_and_loses_nothing(results, name):
     assert 0 < r["J_min"] <= 1 <= r["J_max"] and math.isfinite(r["J_max"])
 
 
-@pytest.mark.parametrize("name", _stress.CASE_NAMES)
+@pytest.mark.parametrize("name", stress.CASE_NAMES)
 def test_kinetic_energy_never_exceeds_the_energy_gravity_released(results, name):
     r = results[name]
-    # E_k(t) <= E_k(0) + W_g(t) + 1 % E_avail at every step (tolerance justified in _stress);
+    # E_k(t) <= E_k(0) + W_g(t) + 1 % E_avail at every step (tolerance justified in studies/stress.py);
     # measured: the excess never rises above 0 (its value at t = 0) in any coarse case
-    assert r["energy_excess_over_available"] <= _stress.ENERGY_TOL
-    assert 0 < r["max_ke_over_available"] <= 1 + _stress.ENERGY_TOL
+    assert r["energy_excess_over_available"] <= stress.ENERGY_TOL
+    assert 0 < r["max_ke_over_available"] <= 1 + stress.ENERGY_TOL
     assert r["available_energy_J"] > 0
 
 
@@ -54,7 +56,7 @@ def test_kinetic_energy_never_exceeds_the_energy_gravity_released(results, name)
         pytest.param(n, marks=pytest.mark.xfail(strict=True, reason="supersonic for kappa = 15 kPa: see SUPERSONIC"))
         if n in SUPERSONIC
         else n
-        for n in _stress.CASE_NAMES
+        for n in stress.CASE_NAMES
     ],
 )
 def test_volume_ratio_stays_within_the_tait_bound(results, name):
@@ -72,19 +74,16 @@ def test_supersonic_cases_fail_only_on_volume_and_are_supersonic(results):
 
 
 def test_the_100k_case_is_shortened_in_ci_and_the_size_is_checked():
-    ci = _stress.case_config(next(c for c in _stress.CASES if c.name == "steps-100k"), "ci")
-    full = _stress.case_config(next(c for c in _stress.CASES if c.name == "steps-100k"), "full")
-    from mpmjax import build
+    ci = stress.case_config(next(c for c in stress.CASES if c.name == "steps-100k"), "ci")
+    full = stress.case_config(next(c for c in stress.CASES if c.name == "steps-100k"), "full")
 
     assert build(ci).scene.n_steps == 2000
     assert build(full).scene.n_steps == 100_000
     with pytest.raises(ValueError, match="--size"):
-        _stress.case_config(_stress.CASES[0], "huge")
+        stress.case_config(stress.CASES[0], "huge")
 
 
 def test_cli_writes_stress_json_and_exits_2_on_a_bad_case(tmp_path, capsys):
-    from mpmjax.cli import main
-
     out = tmp_path / "stress.json"
     assert main(["stress", "--case", "alpha-10", "--out", str(out)]) == 0
     doc = json.loads(out.read_text())

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 import mpmjax
-from mpmjax import cli
 from mpmjax import builtin_scenes
 from mpmjax._io import FrameWriter
 from mpmjax._xdmf import write_xdmf
@@ -85,7 +84,7 @@ def check_xdmf(xdmf_path: Path, h5_path: Path):
 
 def test_xdmf_from_cli_run(tmp_path):
     out = tmp_path / "run"
-    cli.run_scene("dambreak-lab", out, ["time.t_end_s=0.05", "time.n_frames=2", "domain.cell_size_m=0.02"], quiet=True)
+    mpmjax.run_scene("dambreak-lab", out, ["time.t_end_s=0.05", "time.n_frames=2", "domain.cell_size_m=0.02"], quiet=True)
     xdmf, h5 = out / "result.xdmf", out / "result.h5"
     assert xdmf.is_file() and not (out / "result.xdmf.tmp").exists()
     grids = check_xdmf(xdmf, h5)

@@ -36,10 +36,10 @@ if ls .whl/taichi-*.whl > /dev/null 2>&1; then
         2>&1 | grep '^{' | tee -a "$OUT/side_by_side.jsonl"
       timeout 60 "$py" - "$round" <<'PY' 2>&1 | grep '^{' | tee -a "$OUT/side_by_side.jsonl"
 import json, sys
-from mpmjax import _bench
+from mpmjax.studies import bench
 from mpmjax import build, validate
-raw = json.loads(json.dumps(_bench.MPM88))
-r = _bench._measure(build(validate(raw)), 2000)
+raw = json.loads(json.dumps(bench.MPM88))
+r = bench._measure(build(validate(raw)), 2000)
 print(json.dumps({"round": int(sys.argv[1]), "code": "mpmjax mpm88-equivalent (float32)", **r}))
 PY
     done

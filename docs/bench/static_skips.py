@@ -15,6 +15,13 @@ import sys
 import time
 from pathlib import Path
 
+import jax
+
+from mpmjax import _simulate, load_scene, run_scene
+from mpmjax import build
+from mpmjax._simulate import _split, make_chunk
+from mpmjax.studies.bench import _measure
+
 OUT = Path(__file__).with_name("static_skips.jsonl")
 
 
@@ -26,8 +33,6 @@ def record(**row):
 
 
 def measure(setup, steps, reps=3):
-    from mpmjax._bench import _measure
-
     load = os.getloadavg()[0]
     r = _measure(setup, steps, reps)
     r["load_avg_start"] = load
@@ -38,9 +43,6 @@ def measure(setup, steps, reps=3):
 
 def rheology():
     """Same dam break (dambreak-lab, 1600 particles) with Newtonian, Bingham and Coussot material."""
-    from mpmjax import load_scene
-    from mpmjax import build
-
     common = ["numerics.dt_s=2e-4"]  # one step size for all three (below every model's limit)
     models = {
         "newtonian": ["material.model=newtonian", "material.viscosity_pa_s=4.0"],
@@ -68,9 +70,6 @@ SLAB_3D = [
 
 def dim():
     """2D dam break against a thin 3D slab (periodic y, one cell thick) of the same block."""
-    from mpmjax import load_scene
-    from mpmjax import build
-
     s2 = build(load_scene("dambreak-lab", ["numerics.dt_s=2e-4"]))
     record(part="dim", case="2D", **measure(s2, 400))
     over3 = SLAB_3D + ["numerics.dt_s=2e-4"]
@@ -80,8 +79,6 @@ def dim():
 
 def interleaved(progs: dict, steps: int, rounds: int = 10) -> dict:
     """Best wall time [s] per program, the programs timed in turn round after round."""
-    import jax
-
     best = {k: float("inf") for k in progs}
     for _ in range(rounds):
         for k, (s, g) in progs.items():
@@ -93,12 +90,6 @@ def interleaved(progs: dict, steps: int, rounds: int = 10) -> dict:
 
 def rheology_dim_interleaved():
     """The rheology and 2D/3D cases compiled first, then timed in turn (best of 10 rounds)."""
-    import jax
-
-    from mpmjax import load_scene
-    from mpmjax import build
-    from mpmjax._simulate import make_chunk
-
     common = ["numerics.dt_s=2e-4"]
     cases = {
         "newtonian": ["material.model=newtonian", "material.viscosity_pa_s=4.0"],
@@ -131,9 +122,6 @@ def rheology_dim_interleaved():
 
 def grid():
     """Step time against the grid size with the same particles: x extent of the domain x0.5, x1, x2."""
-    from mpmjax import load_scene
-    from mpmjax import build
-
     cases = {
         "field-dambreak-2d": ([3000.0, 24.0], 40),
         "field-dambreak-3d": ([3000.0, 300.0, 24.0], 10),
@@ -150,12 +138,6 @@ def grid():
 def grid_interleaved():
     """As ``grid``, but the three grid sizes of a scene are compiled first and then timed in turn,
     round after round (best of 5 rounds each), so that load drift hits all three alike."""
-    import jax
-
-    from mpmjax import load_scene
-    from mpmjax import build
-    from mpmjax._simulate import make_chunk
-
     cases = {
         "field-dambreak-2d": ([3000.0, 24.0], 40),
         "field-dambreak-3d": ([3000.0, 300.0, 24.0], 6),
@@ -191,12 +173,6 @@ def grid_particles():
     """Step time against both the grid size (x extent x0.5, x1) and the particle count (the whole
     buffer and a prefix of a quarter of it), interleaved: separates the grid, particle and fixed
     parts of a step for the 3D field scenes."""
-    import jax
-
-    from mpmjax import load_scene
-    from mpmjax import build
-    from mpmjax._simulate import _split, make_chunk
-
     cases = {
         "field-dambreak-3d": ([3000.0, 300.0, 24.0], 6),
         "field-pipe-3d": ([150.0, 25.0, 2.0], 10),
@@ -228,13 +204,10 @@ def grid_particles():
 
 def staged():
     """Pipe pours through the command-line runner, staged against the whole buffer."""
-    from mpmjax import cli
-
     cases = {
         "flume-deposition": ["time.t_end_s=400.0", "time.n_frames=40", "inflow.t_stop_s=400.0"],
         "field-pipe-3d": ["time.t_end_s=30.0", "time.n_frames=10", "inflow.t_stop_s=30.0"],
     }
-    from mpmjax import _simulate
 
     _simulate.MIN_STAGE = 64  # stage these small pools too (the default stops at 256 particles)
     if len(sys.argv) > 2:
@@ -244,7 +217,7 @@ def staged():
         for st in (False, True):
             load = os.getloadavg()[0]
             out = Path(f"/tmp/static_skips_{name}_{st}")
-            s = cli.run_scene(name, out, over, quiet=True, staged=st, checkpoint_every=0)
+            s = run_scene(name, out, over, quiet=True, staged=st, checkpoint_every=0)
             walls[st] = s["wall_s"]
             record(
                 part="staged",

@@ -8,7 +8,7 @@ The algorithm is MLS-MPM as in Taichi's ``mpm88`` example (written here from the
 al. 2018, not copied): 2D, 128 x 128 cells on the unit square, 8192 particles at 2 per cell per
 axis, quadratic B-spline, APIC, a weakly compressible fluid p = kappa (1 - J), gravity, free-slip
 box walls three cells thick.  The particle block and the material are those of
-``mpmjax._bench.MPM88`` (rho = 1000 kg/m^3, kappa = 4e5 Pa); the step dt = 1e-4 s.  Cost per
+``mpmjax.studies.bench.MPM88`` (rho = 1000 kg/m^3, kappa = 4e5 Pa); the step dt = 1e-4 s.  Cost per
 particle-step does not depend on dt.
 
 Prints one JSON line: particle-steps per second (best of ``reps``), threads, compile time.

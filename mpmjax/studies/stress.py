@@ -51,8 +51,21 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import platform
+import sys
 import time
 from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._build import build
+from .._schema import load_scene
+from .._driver import Progress, fail
+from .._io import atomic_write_text
+from .._constitutive import TAIT_C
+from .._step import make_step
 
 ENERGY_TOL = 0.01
 EXPANSION_TOL = 0.02
@@ -128,19 +141,12 @@ CASE_NAMES = tuple(c.name for c in CASES)
 
 def tait_volume_ratio(p: float, kappa: float) -> float:
     """J at pressure p [Pa] of the Tait EOS p = C kappa (exp((1 - J)/C) - 1)."""
-    from ._constitutive import TAIT_C
-
     return 1.0 - TAIT_C * math.log1p(p / (TAIT_C * kappa))
 
 
 def _make_advance(scene, n_steps: int):
     """jit ``advance(state, params, x0, ke0) -> (state, diag)``: ``n_steps`` steps by ``lax.scan``
     with every step's diagnostics reduced to the chunk's extremes."""
-    import jax
-    import jax.numpy as jnp
-
-    from ._step import make_step
-
     step = make_step(scene)
 
     def diag(s, params, x0, ke0):
@@ -195,8 +201,6 @@ def _make_advance(scene, n_steps: int):
 
 
 def case_config(case: Case, size: str) -> dict:
-    from ._schema import load_scene
-
     if size not in ("ci", "full"):
         raise ValueError(f"--size = {size!r} is invalid: allowed values: ci, full")
     ov = dict(case.overrides)
@@ -206,11 +210,6 @@ def case_config(case: Case, size: str) -> dict:
 
 def run_case(case: Case, size: str = "ci", progress=None) -> dict:
     """Run one stress case; returns its figures and the verdict (``passed``, ``failures``)."""
-    import jax
-    import numpy as np
-
-    from ._build import build
-
     cfg = case_config(case, size)
     s = build(cfg)
     sc, params = s.scene, s.params
@@ -342,8 +341,6 @@ def format_table(recs: list[dict]) -> str:
 
 def run_stress(size: str = "ci", names=None, out: Path | None = None, log=None) -> list[dict]:
     """Run the named cases (default all); write ``out`` (JSON) after each case."""
-    from ._io import atomic_write_text
-
     names = list(names) if names else list(CASE_NAMES)
     for n in names:
         if n not in CASE_NAMES:
@@ -353,8 +350,6 @@ def run_stress(size: str = "ci", names=None, out: Path | None = None, log=None) 
         case = next(c for c in CASES if c.name == n)
         prog = None
         if log is not None:
-            from .cli import Progress
-
             bar = Progress(1, f"{n:13s}")
 
             def prog(done, total, t, bar=bar):
@@ -372,10 +367,6 @@ def run_stress(size: str = "ci", names=None, out: Path | None = None, log=None) 
 
 
 def _doc(size, recs):
-    import platform
-
-    import jax
-
     return {
         "size": size,
         "criteria": {
@@ -401,14 +392,11 @@ def add_arguments(p):
 
 def cmd_stress(args) -> int:
     """Exit 0 when every case passes, 1 when one fails, 2 on invalid input, 130 on interrupt."""
-    import sys
-
     log = lambda *a: print(*a, file=sys.stderr)  # noqa: E731
     try:
         recs = run_stress(args.size, args.case, Path(args.out), log)
     except ValueError as e:
-        print(f"mpmjax: error: {e}", file=sys.stderr)
-        return 2
+        return fail(str(e))
     except KeyboardInterrupt:
         print(f"\ninterrupted: finished cases remain in {args.out}", file=sys.stderr)
         return 130

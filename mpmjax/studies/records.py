@@ -1,6 +1,6 @@
 """``mpmjax records``: the thesis's headline figures next to ours (issue 5, "Records").
 
-Each record runs one built-in scene through ``mpmjax.cli.run_scene`` (so every run also
+Each record runs one built-in scene through ``mpmjax.run_scene`` (so every run also
 leaves its ``result.h5``, ``summary.json`` and ``result.png`` under ``--out``) and reads the
 figure the thesis reports from the run's ``summary.json`` (or, for the field pipe's
 centre-line beach slope, from the last frame of ``result.h5``):
@@ -35,6 +35,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from .._schema import SceneError, load_scene
+from .._driver import FAILED, fail, run_scene
+from .._health import RunFailure
+from .._io import atomic_write_text, read_result
+from .._metrics import beach_slope, surface_profile
 
 # --------------------------------------------------------------------------------------
 # scale study (thesis §5.1, Table 9), as overrides of the built-in scene "scale-study"
@@ -153,9 +159,6 @@ def centreline_beach_slope(result_h5: Path, band_m: float) -> float:
     ``band_m`` of the y = 0 centre line (3D), relative to the base (the domain is level; a
     slope is gravity tilted). Bins of one cell; 10 % of the wetted length trimmed each end
     (``mpmjax._metrics.beach_slope``)."""
-    from ._io import read_result
-    from ._metrics import beach_slope, surface_profile
-
     res = read_result(result_h5)
     cfg = json.loads(res["attrs"]["scene_config_json"])
     fr = res["frames"]
@@ -170,8 +173,6 @@ def centreline_beach_slope(result_h5: Path, band_m: float) -> float:
 
 
 def _run(scene: str, out: Path, overrides: list[str], log, progress: bool = False) -> dict:
-    from .cli import run_scene
-
     log(f"  {scene} {' '.join(overrides)}".rstrip())
     s = run_scene(scene, out, overrides, quiet=not progress)
     log(
@@ -198,8 +199,6 @@ def _run_info(s: dict) -> dict:
 def record(name: str, size: str, out: Path, log=lambda *a: None, progress: bool = False) -> tuple[list[dict], dict]:
     """Run record ``name`` at ``size`` ('ci' or 'full') under ``out/name``; returns (rows, runs).
     ``progress``: show each run's progress bar (stderr)."""
-    from ._schema import load_scene
-
     if name == "scale-study":
         return _scale_study(size, out / name, log, progress)
     over = CI[name] if size == "ci" else []
@@ -436,8 +435,6 @@ def run_records(names, size: str, out: Path, log=None, progress: bool = False) -
     """Run the records ``names`` (all when empty) and write records.json / records.md to ``out``
     after each record. ``log``: a print-like function for one line per run; ``progress``: also
     show each run's progress bar."""
-    from ._io import atomic_write_text
-
     if size not in SCALE_SIZES:
         raise ValueError(f"--size {size!r} is invalid: allowed ci, full")
     names = list(names) or list(RECORD_NAMES)
@@ -473,21 +470,17 @@ def add_arguments(p):
 
 
 def cmd_records(args) -> int:
-    from ._schema import SceneError
-    from ._health import RunFailure
-    from .cli import FAILED, _fail
-
     if args.size not in SCALE_SIZES:
-        return _fail(f"--size {args.size!r} is invalid: allowed ci, full")
+        return fail(f"--size {args.size!r} is invalid: allowed ci, full")
     bad = [n for n in args.names if n not in RECORD_NAMES]
     if bad:
-        return _fail(f"record {bad[0]!r} is invalid: allowed {', '.join(RECORD_NAMES)}")
+        return fail(f"record {bad[0]!r} is invalid: allowed {', '.join(RECORD_NAMES)}")
     try:
         doc = run_records(
             args.names, args.size, Path(args.out), log=lambda *a: print(*a, file=sys.stderr), progress=True
         )
     except (SceneError, ValueError) as e:
-        return _fail(str(e))
+        return fail(str(e))
     except RunFailure as e:
         print(f"\nmpmjax: {e}\nthe records measured before it are in {Path(args.out) / 'records.md'}", file=sys.stderr)
         return FAILED

@@ -33,12 +33,22 @@ from __future__ import annotations
 import json
 import math
 import os
+import platform
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
+
+from .._build import build
+from .._schema import SceneError, load_scene
+from .._driver import USAGE_ERROR
+from .._io import _jsonable, atomic_write_text
+from .._metrics import surface_profile
+from .._observables import runout
+from .._simulate import simulate
 
 SCENE = "dambreak-lab"
 DEFAULTS = {
@@ -117,8 +127,6 @@ def filled_profile(x, active, edges, spacing_m: float) -> np.ndarray:
     """Free-surface height [m] per bin (``surface_profile``); empty bins between the first and last
     wetted bin are linearly interpolated (a coarse run leaves gaps between its particle columns),
     bins outside the deposit are 0 (the bed, y = 0)."""
-    from ._metrics import surface_profile
-
     xc, top = surface_profile(x, active, edges, spacing_m)
     good = np.isfinite(top)
     out = np.zeros_like(xc)
@@ -160,13 +168,6 @@ def _settings(overrides: dict) -> dict:
 
 def run_case(overrides: dict, t_end: float, n_frames: int, edges) -> dict:
     """One run in this process: timings, runout [m], filled profile [m] on ``edges``, status."""
-    import jax
-
-    from ._schema import SceneError, load_scene
-    from ._build import build
-    from ._observables import runout
-    from ._simulate import simulate
-
     ov = {**overrides, "time.t_end_s": t_end, "time.n_frames": n_frames}
     rec = {"status": "ok"}
     try:
@@ -209,7 +210,7 @@ def _run_isolated(overrides: dict, t_end: float, n_frames: int, edges) -> dict:
     """``run_case`` in a fresh Python process (its own jax_enable_x64 and caches)."""
     arg = json.dumps({"overrides": overrides, "t_end": t_end, "n_frames": n_frames, "edges": list(edges)})
     p = subprocess.run(
-        [sys.executable, "-m", "mpmjax._pareto", arg], capture_output=True, text=True, env=dict(os.environ)
+        [sys.executable, "-m", "mpmjax.studies.pareto", arg], capture_output=True, text=True, env=dict(os.environ)
     )
     lines = p.stdout.strip().splitlines()
     if p.returncode != 0 or not lines:
@@ -293,6 +294,7 @@ def markdown(rows: list[dict]) -> str:
 
 
 def plot(rows: list[dict], path: Path, title: str) -> None:
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -335,10 +337,6 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
 def run_pareto(size: str = "ci", out: Path | str = "docs", fresh: bool = False, log=None) -> dict:
     """Run the sweep; write ``OUT/bench/pareto_dambreak_lab.json`` (after every run) and
     ``OUT/img/pareto_dambreak_lab.png``.  Returns the JSON document."""
-    import platform
-
-    from ._io import _jsonable, atomic_write_text
-
     if log is None:
 
         def log(msg):
@@ -423,7 +421,7 @@ def cmd_pareto(args) -> int:
             (Path(args.out) / sub).mkdir(parents=True, exist_ok=True)
         except OSError as e:
             print(f"mpmjax: --out {args.out} is invalid: cannot create {Path(args.out) / sub}: {e}", file=sys.stderr)
-            return 2
+            return USAGE_ERROR
     try:
         run_pareto(args.size, args.out, fresh=args.fresh)
     except KeyboardInterrupt:
@@ -432,9 +430,7 @@ def cmd_pareto(args) -> int:
     return 0
 
 
-if __name__ == "__main__":  # one isolated run: python -m mpmjax._pareto '{"overrides": ...}'
+if __name__ == "__main__":  # one isolated run: python -m mpmjax.studies.pareto '{"overrides": ...}'
     a = json.loads(sys.argv[1])
     r = run_case(a["overrides"], a["t_end"], a["n_frames"], np.asarray(a["edges"]))
-    from ._io import _jsonable
-
     print(json.dumps(_jsonable(r)))

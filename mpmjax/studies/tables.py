@@ -16,10 +16,17 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
+
+from .._build import build
+from .._schema import load_scene
+from .._observables import runout
+from .._simulate import run
 
 # Thesis Table 8 (runs 5a-10b) as overrides of the BASE scene, with the thesis's runout
 # direction relative to BASE: +1 longer, -1 shorter, 0 no change (from §4.5.3 text and
@@ -60,13 +67,6 @@ TABLE7 = [
 
 
 def _one(overrides: dict, scene="dambreak-lab") -> dict:
-    import jax
-
-    from ._schema import load_scene
-    from ._build import build
-    from ._observables import runout
-    from ._simulate import run
-
     cfg = load_scene(scene, overrides)
     s = build(cfg)
     t0 = time.perf_counter()
@@ -197,14 +197,10 @@ STUDIES = {"physical": study_physical, "numerical": study_numerical, "stiff": st
 
 
 def run_study(name: str, out: Path) -> int:
-    import sys
-
     if name not in STUDIES:
         raise ValueError(f"study {name!r} is invalid: allowed values: {', '.join(STUDIES)}")
     out.mkdir(parents=True, exist_ok=True)
     res = STUDIES[name](out, lambda *a: print(*a, file=sys.stderr, flush=True))
-    import jax
-
     res["meta"] = {"jax": jax.__version__, "backend": jax.default_backend()}
     (out / f"study_{name}.json").write_text(json.dumps(res, indent=2, default=str))
     (out / f"study_{name}.md").write_text(res["markdown"] + "\n")

@@ -32,6 +32,13 @@ import platform
 import sys
 import time
 
+import jax
+import jax.numpy as jnp
+
+from .._build import build
+from .._schema import load_scene, validate
+from .._simulate import make_chunk, simulate
+
 MPM88 = {
     "name": "mpm88-equivalent",
     "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [1.0, 1.0], "cell_size_m": 1.0 / 128},
@@ -46,10 +53,6 @@ MPM88 = {
 
 
 def _measure(setup, steps: int, reps: int = 3) -> dict:
-    import jax
-
-    from ._simulate import make_chunk
-
     t0 = time.perf_counter()
     f = jax.jit(make_chunk(setup.scene, steps)).lower(setup.state, setup.params).compile()
     compile_s = time.perf_counter() - t0
@@ -76,9 +79,6 @@ def _measure(setup, steps: int, reps: int = 3) -> dict:
 
 def _fluid(dim: int, n_target: int, dtype: str):
     """The mpm88 fluid as a block filling [0, 0.5]^dim of the unit box, about n_target particles."""
-    from ._schema import validate
-    from ._build import build
-
     k = max(4, 2 * round(n_target ** (1.0 / dim) / 2))  # even: the block edge 0.5 is a whole cell count
     raw = json.loads(json.dumps(MPM88))
     raw["name"] = f"fluid-{dim}d"
@@ -112,8 +112,6 @@ def bench_scaling(sizes, combos=COMBOS, target=1e7, min_steps=20, reps=3, log=pr
 
 
 def _timed(f, *a, reps=3):
-    import jax
-
     best = float("inf")
     for _ in range(reps):
         t0 = time.perf_counter()
@@ -135,9 +133,6 @@ def _mem(compiled) -> dict:
 
 
 def _default_setup(dtype: str, coarse: bool):
-    from ._schema import load_scene
-    from ._build import build
-
     ov = {"numerics.dtype": dtype}
     if coarse:
         ov["domain.cell_size_m"] = 0.02
@@ -146,11 +141,6 @@ def _default_setup(dtype: str, coarse: bool):
 
 def bench_gradient(step_counts, dtype="float32", chunk=50, reps=3, coarse=False, log=print):
     """Forward and reverse-mode (jax.grad w.r.t. mu0) time of the final centroid x, per step count."""
-    import jax
-    import jax.numpy as jnp
-
-    from ._simulate import simulate
-
     setup = _default_setup(dtype, coarse)
     rows = []
     for steps in step_counts:
@@ -215,11 +205,6 @@ def _fmt_bytes(b):
 
 def bench_batch(steps: int, batch: int = 16, dtype="float32", reps=3, coarse=False, log=print):
     """``vmap`` over ``batch`` values of mu0 against ``batch`` sequential calls of one compiled run."""
-    import jax
-    import jax.numpy as jnp
-
-    from ._simulate import make_chunk
-
     setup = _default_setup(dtype, coarse)
     chunk = make_chunk(setup.scene, steps)
 
@@ -268,8 +253,6 @@ def add_arguments(p):
 
 
 def _meta(args, quick: bool, large: bool) -> dict:
-    import jax
-
     sizes = [1e3] if quick else [1e3, 1e4, 1e5] + ([1e6] if large else [])
     return {
         "machine": platform.machine(),
@@ -298,9 +281,6 @@ def _write_json(path, doc) -> None:
 
 
 def run_bench(args) -> int:
-    from ._schema import load_scene, validate
-    from ._build import build
-
     if args.steps < 1:
         raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")
     quick = bool(getattr(args, "quick", False))
