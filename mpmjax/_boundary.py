@@ -12,7 +12,8 @@
   the build seeds it); ``make_release`` switches on the pool particles whose layer time falls in
   the step; ``pipe_nodes`` are the nodes driven at the pipe velocity.
 * ``node_fill``: per node, the packing fraction a domain filled at the seeding lattice would
-  measure, less than 1 where the kernel reaches through a wall.  It is a property of the
+  measure, less than 1 where the kernel reaches through a wall (for the boundary-modified
+  B-splines, near every box wall: their modified functions hold less lattice weight).  It is a property of the
   walls (and of the kernel), used by the grid volume check (``_transfer.packing_fraction``).
 
 Node masks, normals and fills are static numpy arrays of length n_nodes computed once per
@@ -29,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _shapes
-from ._scene import Params, Scene, State
+from ._scene import Params, Scene, State, box_wall_nodes
 
 
 def _wall_masks(scene: Scene):
@@ -146,14 +147,18 @@ def node_fill(scene: Scene) -> np.ndarray:
     less where the kernel reaches through a wall.  phi = (1 - sum over the lattice sites beyond
     each wall of N(site - node) * spacing), multiplied over the walls (exact for box walls on
     different axes; inclined planes and terrain are not counted, so there phi is low and the
-    grid volume check does not act).
+    grid volume check does not act).  With the boundary-modified B-splines the box walls are
+    counted exactly instead (``_fill_box_walls``), the extra planes as above.
     """
     xn = scene.node_positions()
     sp = 2.0 * scene.lp_cells
     reach = _shapes.SUPPORT[scene.shape] + 1.0
     s_k = (np.arange(int(np.ceil(reach / sp)) + 1) + 0.5) * sp  # sites beyond the wall, cells
     fill = np.ones(len(xn))
-    for wall in scene.walls:
+    walls = scene.walls
+    if scene.shape in _shapes.BOUNDARY_MODIFIED:
+        fill, walls = _fill_box_walls(scene, xn, sp, reach), _other_walls(scene)
+    for wall in walls:
         nrm = np.asarray(wall.normal, float)
         nrm = nrm / np.linalg.norm(nrm)
         d = (xn - np.asarray(wall.point)) @ nrm / scene.h  # cells, positive inside
@@ -161,6 +166,47 @@ def node_fill(scene: Scene) -> np.ndarray:
         with jax.ensure_compile_time_eval():  # a constant, also when make_step runs under a trace
             missing = np.asarray(_shapes.kernel_1d(scene.shape, jnp.asarray(r), scene.lp_cells)).sum(axis=1) * sp
         fill = fill * np.clip(1.0 - missing, 0.0, 1.0)
+    return fill
+
+
+def _other_walls(scene: Scene):
+    """The walls that are not box walls (``_scene.box_wall_nodes``): extra planes."""
+    lo, hi = box_wall_nodes(scene)
+    out = []
+    for wall in scene.walls:
+        nrm = np.asarray(wall.normal, float)
+        a = int(np.argmax(np.abs(nrm)))
+        if np.count_nonzero(nrm) == 1:
+            node = round((wall.point[a] - scene.grid_origin[a]) / scene.h)
+            if (nrm[a] > 0 and lo[a] == node) or (nrm[a] < 0 and hi[a] == node):
+                continue
+        out.append(wall)
+    return out
+
+
+def _fill_box_walls(scene: Scene, xn, sp, reach):
+    """``node_fill`` of the box walls for the boundary-modified B-splines: per axis with a box
+    wall, the 1-D sum over a row of seeding-lattice sites of the modified weights times the
+    spacing (the row stops half a spacing inside a wall face and runs on past a face that is no
+    wall), multiplied over the axes.  Exact for the box (tensor-product weights)."""
+    wlo, whi = box_wall_nodes(scene)
+    fill = np.ones(len(xn))
+    extra = int(np.ceil(reach / sp)) + 1
+    for a in range(scene.dim):
+        if not (np.isfinite(wlo[a]) or np.isfinite(whi[a])):
+            continue
+        f_lo = (scene.lo[a] - scene.grid_origin[a]) / scene.h
+        n = int(round((scene.hi[a] - scene.lo[a]) / scene.h / sp))
+        j = np.arange(-(0 if np.isfinite(wlo[a]) else extra), n + (0 if np.isfinite(whi[a]) else extra))
+        sites = f_lo + (j + 0.5) * sp
+        with jax.ensure_compile_time_eval():  # a constant, also when make_step runs under a trace
+            base, w, _ = _shapes.weights_1d(scene.shape, jnp.asarray(sites), 1.0, scene.lp_cells, wlo[a], whi[a])
+            base, w = np.asarray(base), np.asarray(w)
+        k = w.shape[1]
+        row = np.zeros(scene.grid_shape[a])
+        np.add.at(row, np.clip(base[:, None] + np.arange(k)[None, :], 0, scene.grid_shape[a] - 1), w * sp)
+        idx = np.round((xn[:, a] - scene.grid_origin[a]) / scene.h).astype(int)
+        fill = fill * np.clip(row[idx], 0.0, 1.0)
     return fill
 
 

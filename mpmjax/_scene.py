@@ -212,6 +212,30 @@ class Scene:
         return dataclasses.replace(self, **kw)
 
 
+def box_wall_nodes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis, the node indices (as floats) of the box faces that are walls: (lo, hi), each
+    of shape (dim,), -inf / +inf where the face is no wall (open, periodic).
+
+    A box wall is a wall (kind noslip, slip or symmetry) on a face of the domain box: normal
+    along an axis and point on ``lo`` or ``hi``.  The boundary-modified B-splines
+    (``_shapes.BOUNDARY_MODIFIED``) are modified at these faces only; extra planes
+    (``boundary.planes``) and terrain keep the plain B-spline.  The box faces lie on nodes
+    (the domain is a whole number of cells)."""
+    lo = np.full(scene.dim, -np.inf)
+    hi = np.full(scene.dim, np.inf)
+    for wall in scene.walls:
+        nrm = np.asarray(wall.normal, float)
+        a = int(np.argmax(np.abs(nrm)))
+        if np.count_nonzero(nrm) != 1 or scene.periodic[a]:
+            continue
+        node = (wall.point[a] - scene.grid_origin[a]) / scene.h
+        if nrm[a] > 0 and abs(wall.point[a] - scene.lo[a]) <= 1e-9 * scene.h:
+            lo[a] = float(np.round(node))
+        elif nrm[a] < 0 and abs(wall.point[a] - scene.hi[a]) <= 1e-9 * scene.h:
+            hi[a] = float(np.round(node))
+    return lo, hi
+
+
 def ghost_cells(shape: str) -> int:
     """Ghost layer outside each non-periodic face: the stencil of a particle up to one
     cell behind a wall must still fit in the grid."""

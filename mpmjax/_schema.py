@@ -71,7 +71,9 @@ _HEAD: dict[str, Key] = {
         str,
         "gimp",
         "-",
-        "Shape function (gimp: the thesis's choice; see docs/validation.md for the measured accuracy of each).",
+        "Shape function (gimp: the thesis's choice; see docs/validation.md for the measured accuracy of each). "
+        "quadratic_bm / cubic_bm: B-splines modified at the box walls (noslip, slip, symmetry faces) so that they "
+        "interpolate there and have no ghost nodes; extra planes and terrain are not modified.",
         choices=tuple(_shapes.STENCIL),
     ),
     "numerics.transfer": Key(

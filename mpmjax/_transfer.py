@@ -27,7 +27,7 @@ import numpy as np
 
 from . import _shapes
 from ._constitutive import tait_pressure
-from ._scene import Params, Scene, State
+from ._scene import Params, Scene, State, box_wall_nodes
 
 
 # Small fixed-size contractions written as broadcast-multiply-sum: XLA:CPU lowers batched
@@ -60,7 +60,14 @@ class _Stencil:
     def __init__(self, scene: Scene, x):
         dim, h = scene.dim, scene.h
         xi = (x - jnp.asarray(scene.grid_origin, x.dtype)[None, :]) / h
-        base, w1, dw1 = _shapes.weights_1d(scene.shape, xi, h, scene.lp_cells)
+        if scene.shape in _shapes.BOUNDARY_MODIFIED:
+            wlo, whi = box_wall_nodes(scene)
+            base, w1, dw1, mod = _shapes.boundary_modified_1d(scene.shape, xi, h, wlo[None, :], whi[None, :])
+            # (n, dim): on which axes the particle sits close enough to a wall for its weights to be modified
+            self.modified = mod
+        else:
+            base, w1, dw1 = _shapes.weights_1d(scene.shape, xi, h, scene.lp_cells)
+            self.modified = None
         k = _shapes.STENCIL[scene.shape]
         offs = np.array(list(itertools.product(range(k), repeat=dim)), dtype=np.int32)  # (S, dim)
         S = offs.shape[0]
@@ -129,6 +136,14 @@ def make_g2p(scene: Scene):
     v_pic = sum_i w_ip v_i (the velocity that moves the particle); L = sum_i v_i (x) grad w_ip;
     APIC: v_p = v_pic, C = B D^-1 for B-splines (D = ``APIC_D_FACTOR`` h^2 I), C = L for linear
     and GIMP; FLIP: v_p = blend (v + sum_i w_ip (v_new - v_old)_i) + (1 - blend) v_pic, C = 0.
+
+    Boundary-modified B-splines: APIC's inertia D_p = sum_i w_ip r_ip r_ip^T is diagonal
+    (tensor product, linear reproduction) but is h^2/4 (h^2/3) only away from walls; on an
+    axis d where the particle's weights are modified (``st.modified``) D_p,dd falls to 0 at the
+    wall, where B D_p^-1 is 0/0.  There column d of C is that of the velocity gradient L:
+    for ``quadratic_bm`` this is exactly B D_p^-1 (the modified weights are the linear hat
+    there: w_i r_i = D_p,dd dw_i), so C is continuous; for ``cubic_bm`` both are exact for
+    affine velocity fields and differ by O(h |grad^2 v|) across the first cell's edge.
     """
     d_apic = _shapes.APIC_D_FACTOR.get(scene.shape)
 
@@ -141,6 +156,8 @@ def make_g2p(scene: Scene):
             if d_apic is not None:
                 B = _outer_sum(st.w[:, :, None] * vi, st.r)
                 C = B / (d_apic * scene.h**2)
+                if st.modified is not None:
+                    C = jnp.where(st.modified[:, None, :], L, C)
             else:
                 C = L
         else:
