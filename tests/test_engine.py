@@ -427,11 +427,12 @@ POIS_MU, POIS_HALF = 25.0, 0.1  # Pa s, m (gap 0.2 m)
 POIS_UMAX = RHO * G * POIS_HALF**2 / (2 * POIS_MU)  # 1.962 m/s
 
 
-def _poiseuille(h, shape, t_end=2.0, nx=4):
+def _poiseuille(h, shape, t_end=2.0, nx=4, extra=None):
     """Plane Poiseuille of thesis Table 2: mu = 25 Pa s, kappa = 15 kPa, rho = 1000,
     gap 0.2 m between no-slip walls at y = 0 and y = 0.2, periodic in x (nx cells long,
     so no stencil wraps onto itself), gravity 9.81 along x, run 2 s.  The time step
-    uses velocity_scale 2.5 m/s > u_max = 1.96 m/s.  Returns (setup, final)."""
+    uses velocity_scale 2.5 m/s > u_max = 1.96 m/s; ``extra``: more numerics keys.
+    Returns (setup, final)."""
     L = nx * h
     faces = {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "noslip"}
     cfg = _cfg(
@@ -444,7 +445,7 @@ def _poiseuille(h, shape, t_end=2.0, nx=4):
         t_end=t_end,
         n_frames=4,
         mu=POIS_MU,
-        numerics={"shape": shape, "velocity_scale_m_s": 2.5},
+        numerics={"shape": shape, "velocity_scale_m_s": 2.5, **(extra or {})},
     )
     s = m.build(cfg)
     # gravity purely along x (slope_deg is capped at 89 degrees); params are traced
@@ -498,6 +499,76 @@ def test_poiseuille_quadratic_bspline_documented_plateau():
     err = _poiseuille_error(final)
     print(f"Poiseuille quadratic h=0.01 error/u_max {err}")
     assert err < 0.03, err
+
+
+def test_poiseuille_converges_quadratic_bm():
+    """The same problem with the boundary-modified quadratic B-spline (``quadratic_bm``,
+    mpmjax/_shapes.py): the wall defect of the plain quadratic is gone.
+
+    Measured max error / u_max: 2.24e-1 (h = 0.04), 2.88e-2 (0.02), 2.76e-3 (0.01, H/h = 20
+    for the 0.2 m gap); observed orders 2.96, 3.38.  Asserted: finest < 0.5 % (the issue's
+    target) and order > 1.8 per halving.  Below h = 0.01 the default Maxwell stress update
+    sets a floor: its corotational regularisation thins the shear stress by 1/(1 + (lambda
+    gdot)^2), lambda = mu/G = 1.7e-3 s, which speeds the flow up by (lambda gdot_wall)^2 / 2 =
+    2.1e-3 of u_max (gdot_wall = 39 1/s) whatever the shape function (h = 0.005: quadratic_bm
+    2.2e-3, GIMP 1.6e-3); ``test_poiseuille_quadratic_bm_order_explicit`` removes it.
+    """
+    errs = []
+    for h in (0.04, 0.02, 0.01):
+        s, final = _poiseuille(h, "quadratic_bm")
+        assert int(final.n_lost) == 0
+        errs.append(_poiseuille_error(final))
+    orders = [math.log2(a / b) for a, b in itertools.pairwise(errs)]
+    print(f"Poiseuille quadratic_bm errors/u_max {errs}, orders {orders}")
+    assert errs[-1] < 0.005, errs
+    assert all(o > 1.8 for o in orders), (errs, orders)
+
+
+@pytest.mark.slow
+def test_poiseuille_quadratic_bm_order_explicit():
+    """Asymptotic order of ``quadratic_bm`` with the explicit viscous update (sigma' = 2 mu d',
+    no Maxwell regularisation; dt at the viscous limit): measured 3.25e-3 (h = 0.01) and
+    8.15e-4 (h = 0.005), order 1.99 (GIMP: 1.88e-3, 4.73e-4, order 1.99).  About 40 s."""
+    errs = []
+    for h in (0.01, 0.005):
+        s, final = _poiseuille(h, "quadratic_bm", extra={"viscous_update": "explicit"})
+        assert int(final.n_lost) == 0
+        errs.append(_poiseuille_error(final))
+    order = math.log2(errs[0] / errs[1])
+    print(f"Poiseuille quadratic_bm explicit errors/u_max {errs}, order {order}")
+    assert errs[-1] < 0.002 and order > 1.8, (errs, order)
+
+
+def test_quadratic_bm_column_between_slip_walls_settles():
+    """A 0.1 m x 0.1 m Newtonian column (mu = 300 Pa s, kappa = 15 kPa) filling the width
+    between slip walls, on a no-slip base under a slip lid (0.14 m), h = 0.02 m, 100 particles,
+    released at rest (J = 1) so that it first compresses and rings, run 2 s.
+
+    With ``quadratic_bm`` the maximum particle speed falls to 3e-11 m/s at 2 s (2.4e-9 at
+    1 s), as with GIMP (2.6e-11 m/s); the plain quadratic creeps at 6e-4 m/s there.  Asserted:
+    < 1e-6 m/s at 2 s (the issue's target), no lost particle, and the particles still fill
+    the width (slip walls hold them without a gap: x within [0, 0.1]).
+    """
+    cfg = _cfg(
+        2,
+        [0, 0],
+        [0.1, 0.14],
+        0.02,
+        {"x_lo": "slip", "x_hi": "slip", "y_lo": "noslip", "y_hi": "slip"},
+        [{"lo_m": [0.0, 0.0], "hi_m": [0.1, 0.1]}],
+        t_end=2.0,
+        n_frames=4,
+        mu=300.0,
+        numerics={"shape": "quadratic_bm"},
+    )
+    s = m.build(cfg)
+    final, frames = m.run(s.scene, s.state, s.params)
+    assert int(final.n_lost) == 0
+    speed = np.sqrt(np.sum(np.asarray(frames.v) ** 2, axis=-1)).max(axis=-1)
+    print(f"quadratic_bm column: max speed per frame {speed}")
+    assert speed[-1] < 1e-6, speed
+    x = np.asarray(final.x[:, 0])
+    assert x.min() >= 0.0 and x.max() <= 0.1
 
 
 # ======================================================================================
