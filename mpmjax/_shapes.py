@@ -136,14 +136,14 @@ def _boundary_modified(kind, xi, wall_lo, wall_hi):
     # position k - 1 when base == W + 2 - k): fold its weight into W and W + 1 (c_{W-1} = 2 c_W - c_{W+1})
     at_lo = base == lo - 1.0
     at_hi = base == hi + 2.0 - k
-    one = (1,) * xi.ndim
-    sel_lo = jnp.asarray([-1.0, 2.0, -1.0] + [0.0] * (k - 3), dt).reshape(one + (k,))
-    sel_hi = jnp.asarray([0.0] * (k - 3) + [-1.0, 2.0, -1.0], dt).reshape(one + (k,))
 
     def fold(a):
-        g_lo = jnp.where(at_lo, a[..., 0], 0.0)[..., None]
-        g_hi = jnp.where(at_hi, a[..., k - 1], 0.0)[..., None]
-        return a + g_lo * sel_lo + g_hi * sel_hi
+        cols = [a[..., j] for j in range(k)]
+        g = jnp.where(at_lo, cols[0], 0.0)
+        cols[0], cols[1], cols[2] = cols[0] - g, cols[1] + 2.0 * g, cols[2] - g
+        g = jnp.where(at_hi, cols[k - 1], 0.0)
+        cols[k - 1], cols[k - 2], cols[k - 3] = cols[k - 1] - g, cols[k - 2] + 2.0 * g, cols[k - 3] - g
+        return jnp.stack(cols, axis=-1)
 
     return base, fold(w), fold(dw), at_lo | at_hi
 
