@@ -132,7 +132,7 @@ def make_step(scene: Scene):
             # s (I + dt L), s = ((1 + dbar)/(1 + delta))^(1/dim), so det(I + dt L) = 1 + dbar.
             delta = volume_increment(L, dt)
             mass_p = params.material.rho * state.vol0 * state.active
-            dbar = volume_average(scene, st, mass_p, delta, inv_m, has)
+            dbar = volume_average(scene, st, mass_p, delta[:, None], inv_m, has)[:, 0]
             pos = (delta > -1.0) & (dbar > -1.0)
             ln_s = jnp.where(pos, jnp.log1p(jnp.where(pos, dbar, 0.0)) - jnp.log1p(jnp.where(pos, delta, 0.0)), 0.0)
             s_1 = jnp.expm1(ln_s / dim)[:, None, None]  # s - 1, accurate for s near 1

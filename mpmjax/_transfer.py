@@ -212,19 +212,20 @@ def volume_increment(L, dt):
     return tr + minors + jnp.linalg.det(A)
 
 
-def volume_average(scene: Scene, st: _Stencil, mass_p, delta, inv_m, has):
-    """J-bar: the mass-weighted average of the volume increments ``delta`` (n,) around each particle.
+def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has):
+    """The mass-weighted average through the grid of the particle fields ``q`` (n, k) (J-bar).
 
     ``st`` the stencil of the step's P2G, ``mass_p`` (n,) the particle masses (0 when inactive),
     ``inv_m`` (N,) 1/m_i on the nodes that hold mass and 0 elsewhere, ``has`` (N,) bool those
-    nodes.  Nodal delta_i = sum_p w_ip m_p delta_p / m_i; at the particle
-    sum_i w_ip delta_i / sum_{i: has} w_ip (the module docstring).  A particle none of whose
-    nodes holds mass keeps its own delta.
+    nodes.  Nodal q_i = sum_p w_ip m_p q_p / m_i; at the particle
+    sum_i w_ip q_i / sum_{i: has} w_ip (the module docstring).  A particle none of whose
+    nodes holds mass keeps its own q.
     """
-    num = jnp.zeros((scene.n_nodes,), delta.dtype)
-    num = num.at[st.idx.reshape(-1)].add((mass_p[:, None] * st.w * delta[:, None]).reshape(-1))
-    d_node = num * inv_m
-    wsum = jnp.sum(st.w * has[st.idx].astype(delta.dtype), axis=1)
+    k = q.shape[1]
+    num = jnp.zeros((scene.n_nodes, k), q.dtype)
+    num = num.at[st.idx.reshape(-1)].add(((mass_p[:, None] * st.w)[:, :, None] * q[:, None, :]).reshape(-1, k))
+    q_node = num * inv_m[:, None]
+    wsum = jnp.sum(st.w * has[st.idx].astype(q.dtype), axis=1)
     ok = wsum > 0.0
-    dbar = jnp.sum(st.w * d_node[st.idx], axis=1) / jnp.where(ok, wsum, 1.0)
-    return jnp.where(ok, dbar, delta)
+    qbar = _wsum(st.w, q_node[st.idx]) / jnp.where(ok, wsum, 1.0)[:, None]
+    return jnp.where(ok[:, None], qbar, q)
