@@ -9,16 +9,19 @@ All data used for fitting here are SYNTHETIC (generated from known parameters).
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
+from typing import ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import mpmjax
 from mpmjax import rheometer as R
-from mpmjax._rheology import coussot_lambda_exact
+from mpmjax._rheology import KAPPA, MU0, RHO, Internal, Param, coussot_lambda_exact
 
 # float64 for the accuracy checks (tests/conftest.py does this too).  Parameters are
 # built at call time, so enabling it after the imports is enough.
@@ -300,6 +303,98 @@ def test_fit_rejects_bad_arguments():
         R.fit(data, p, kind="bogus")
     with pytest.raises(ValueError, match="mu0 = -1 is invalid"):
         R.fit(data, p._replace(mu0=jnp.asarray(-1.0)))
+
+
+# --------------------------------------------------------------------------------------
+# other laws: the rheometer reads the law's declared rate, viscosity and steady state
+# --------------------------------------------------------------------------------------
+
+
+def test_laws_without_internal_variables_need_no_solve():
+    t = np.array([0.0, 1.0, 10.0])
+    newt = R.make_params(law="newtonian", mu=2.0)
+    res = R.constant_shear(newt, jnp.array([1.0, 10.0]), t)
+    assert res.internal == {} and res.mu_pa_s.shape == (2, 3)
+    np.testing.assert_array_equal(res.mu_pa_s, 2.0)
+    np.testing.assert_array_equal(res.tau_pa, 2.0 * np.array([[1.0], [10.0]]) * np.ones(3))
+    with pytest.raises(AttributeError, match="no internal variable 'lam'"):
+        res.lam
+    # Bingham (Papanastasiou, default options): mu = mu + tau_y (1 - exp(-m gdot))/gdot at all t
+    bing = R.make_params(law=mpmjax.Bingham, mu=1.0, tau_y=10.0)
+    assert float(bing.m) == 100.0  # the declared default
+    res = R.shear_history(bing, [0.0, 1.0], [2.0, 5.0], [0.5, 2.0])
+    want = 1.0 + 10.0 * (1.0 - np.exp(-100.0 * np.array([2.0, 5.0]))) / np.array([2.0, 5.0])
+    np.testing.assert_allclose(res.mu_pa_s, want, rtol=1e-14)
+    tau, mu = R.steady_flow_curve(bing, jnp.array([2.0, 5.0]))
+    np.testing.assert_allclose(mu, want, rtol=1e-14)
+    R.validate_params(bing)
+    with pytest.raises(ValueError, match="tau_y = -1 is invalid; allowed range: >= 0 Pa"):
+        R.validate_params(bing._replace(tau_y=jnp.asarray(-1.0)))
+    with pytest.raises(ValueError, match="critical_point is defined for the Coussot law only; got bingham"):
+        R.critical_point(bing)
+
+
+def test_a_registered_law_with_two_internal_variables(tmp_path):
+    """The rheometer integrates any law's declared rate (here two internal variables, a
+    dict pytree for diffrax) and writes each variable under its label."""
+    k_param = Param("k_fc", "material.test_k_fc", "-", "Test: breakdown per unit strain.", 0.5, lo=0.0, lo_open=True)
+    a0 = Param("a0_fc", "material.test_a0_fc", "-", "Test: initial a.", 1.0, lo=0.0)
+
+    class P(NamedTuple):
+        rho: jnp.ndarray
+        kappa: jnp.ndarray
+        mu0: jnp.ndarray
+        k_fc: jnp.ndarray
+        a0_fc: jnp.ndarray
+
+    @dataclasses.dataclass(frozen=True)
+    class TwoStage(mpmjax.Law):
+        """Test law: da/dt = -k gdot a, db/dt = k gdot a, mu = mu0 (1 + a + 2 b)."""
+
+        name: ClassVar[str] = "test_two_stage"
+        params_type: ClassVar[type] = P
+        params: ClassVar[tuple] = (RHO, KAPPA, MU0, k_param, a0)
+        internals: ClassVar[tuple] = (
+            Internal("a", "a_structure", "-", "a", "a0_fc"),
+            Internal("b", "b_broken", "-", "b", "a0_fc"),
+        )
+
+        def rate(self, params, shear, internal):
+            d = params.k_fc * shear * internal["a"]
+            return {"a": -d, "b": d}
+
+        def update_internal(self, params, shear, internal, dt):
+            e = jnp.exp(-params.k_fc * shear * dt)
+            return {"a": internal["a"] * e, "b": internal["b"] + internal["a"] * (1 - e)}
+
+        def mu(self, params, shear, internal):
+            return params.mu0 * (1.0 + internal["a"] + 2.0 * internal["b"])
+
+        def max_viscosity(self, params):
+            return 3.0 * params.mu0 * params.a0_fc
+
+        def steady_internal(self, params, shear):
+            return {"a": jnp.zeros_like(shear), "b": 2.0 * params.a0_fc + 0 * shear}
+
+    mpmjax.register_law(TwoStage)
+    try:
+        p = R.make_params(law="test_two_stage")  # declared defaults (mu0 4, k 0.5, a0 1)
+        t = np.geomspace(1e-2, 10.0, 30)
+        res = R.constant_shear(p, jnp.array([1.0, 4.0]), t)
+        e = np.exp(-0.5 * np.array([[1.0], [4.0]]) * t)
+        # solver rtol 1e-10: global errors ~1e-10 absolute where a has decayed to ~1e-9 (measured)
+        np.testing.assert_allclose(res.internal["a"], e, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(res.internal["b"], 2.0 - e, rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(res.mu_pa_s, 4.0 * (1.0 + e + 2.0 * (2.0 - e)), rtol=1e-7)
+        meta = R.write_outputs(tmp_path, p, [1.0, 4.0], t)
+        assert meta["csv_columns"] == ["t_s", "gamma_dot_1_s", "a_structure", "b_broken", "mu_pa_s", "tau_pa"]
+        assert meta["critical_point"] is None and "Coussot law only" in meta["critical_point_note"]
+        assert meta["steady_state"][0]["b_broken_ss"] == 2.0 and meta["steady_state"][0]["mu_ss_pa_s"] == 20.0
+        assert meta["params"]["k_fc"] == {"value": 0.5, "unit": "-"}
+        with open(tmp_path / "rheometer.csv") as fh:
+            assert next(csv.reader(fh)) == meta["csv_columns"]
+    finally:
+        mpmjax.unregister_law("test_two_stage")
 
 
 # --------------------------------------------------------------------------------------
