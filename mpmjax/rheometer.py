@@ -38,7 +38,8 @@ Identifiability: the steady flow curve depends on alpha and T only through the
 product alpha*T, so flow-curve data identify mu0, n and alpha*T (plus mu_max where
 the cap is reached) but never alpha and T separately.  Transient (time-resolved)
 data identify alpha through the relaxation rate alpha*gdot and then T through
-lam_ss.
+lam_ss.  Fitting is done by ``calibration`` (``FlowCurveExperiment``,
+``TransientExperiment`` and ``calibration.fit.fit``; docs/rheometer.md).
 
 Numerics: the kinetics are solved with ``diffrax.diffeqsolve`` using ``Kvaerno5``
 (an L-stable 5th-order ESDIRK method) and an adaptive ``PIDController``.  The Coussot ODE
@@ -70,14 +71,12 @@ import json
 import math
 import os
 import sys
-from collections.abc import Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from mpmjax._rheology import BASE_VALUES, MODELS, Coussot, CoussotParams, Law, Param, law_of
 
@@ -88,14 +87,12 @@ __all__ = [
     "MIZANI_VALUES",
     "MIZANI_FAST_VALUES",
     "RheometerResult",
-    "FitResult",
     "make_params",
     "validate_params",
     "constant_shear",
     "shear_history",
     "steady_flow_curve",
     "critical_point",
-    "fit",
     "write_outputs",
     "add_arguments",
     "run_from_args",
@@ -115,9 +112,6 @@ __all__ = [
 MIZANI_VALUES = dict(mu0=1.0, alpha=0.36, T=1.0, n=1.074, lambda0=0.0, mu_max=5000.0, rho=1850.0, kappa=15000.0)
 # "Fast-aging" variant, thesis Table 6 / Fig. 31: n = 1.75.
 MIZANI_FAST_VALUES = dict(MIZANI_VALUES, n=1.75)
-
-# Coussot parameters that fit() may fit.
-_FITTABLE = ("mu0", "alpha", "T", "n", "lambda0", "mu_max")
 
 # Parameters that may be +inf: a viscosity cap (no cap).
 _INF_ALLOWED = ("mu_max",)
@@ -509,159 +503,6 @@ def critical_point(params: CoussotParams):
     gdot_c = nm1 ** (1.0 / n) / aT
     tau_c = params.mu0 * n * nm1 ** (1.0 / n - 1.0) / aT
     return gdot_c, tau_c
-
-
-# --------------------------------------------------------------------------------------
-# Fitting
-# --------------------------------------------------------------------------------------
-
-
-class FitResult(NamedTuple):
-    """Output of :func:`fit`.
-
-    params: fitted ``CoussotParams``; loss_history: loss before each optimiser step
-    (length ``steps``); loss_initial / loss_final: loss at the initial / fitted params
-    (mean squared natural-log residual, dimensionless); fitted: names of the fitted fields.
-    """
-
-    params: CoussotParams
-    loss_history: np.ndarray
-    loss_initial: float
-    loss_final: float
-    fitted: tuple
-
-
-def _prepare_data(data: Mapping[str, Any], kind: str, dtype):
-    g = data.get("gamma_dot_1_s")
-    if g is None:
-        raise ValueError("data needs 'gamma_dot_1_s' [1/s]")
-    g = jnp.atleast_1d(jnp.asarray(g, dtype=dtype))
-    if kind == "flow_curve":
-        if "tau_pa" in data:
-            y = jnp.log(jnp.asarray(data["tau_pa"], dtype=dtype))
-            return {"gdot": g, "log_y": y, "what": "tau"}
-        if "mu_pa_s" in data:
-            y = jnp.log(jnp.asarray(data["mu_pa_s"], dtype=dtype))
-            return {"gdot": g, "log_y": y, "what": "mu"}
-        raise ValueError("flow_curve data needs 'tau_pa' [Pa] or 'mu_pa_s' [Pa s]")
-    if kind == "transient":
-        if "t_s" not in data or "mu_pa_s" not in data:
-            raise ValueError("transient data needs 't_s' [s], 'gamma_dot_1_s' [1/s] and 'mu_pa_s' [Pa s]")
-        t = jnp.asarray(data["t_s"], dtype=dtype)
-        mu = jnp.asarray(data["mu_pa_s"], dtype=dtype).reshape(g.shape[0], t.shape[0])
-        _check_times(t, "data['t_s']")
-        return {"gdot": g, "t": t, "log_y": jnp.log(mu), "what": "mu"}
-    raise ValueError(f"kind = {kind!r} is invalid; allowed: 'flow_curve' or 'transient'")
-
-
-def _loss(params, d, kind, rtol, atol, max_steps):
-    """Mean squared log residual (i.e. squared relative error to first order)."""
-    if kind == "flow_curve":
-        tau, mu = steady_flow_curve(params, d["gdot"])
-        model = tau if d["what"] == "tau" else mu
-    else:
-        model = _constant_shear_jit(params, d["gdot"], d["t"], rtol, atol, max_steps).mu_pa_s
-    return jnp.mean((jnp.log(model) - d["log_y"]) ** 2)
-
-
-def fit(
-    data: Mapping[str, Any],
-    init_params,
-    fit: Sequence[str] = ("mu0", "alpha", "T", "n"),
-    kind: str = "flow_curve",
-    steps: int = 500,
-    learning_rate: float = 0.05,
-    optimizer: str = "adam",
-    *,
-    rtol: float = 1e-8,
-    atol: float = 1e-10,
-    max_steps: int = 4096,
-) -> FitResult:
-    """Fit Coussot parameters to rheometer data with optax.
-
-    data (SI units):
-      * kind="flow_curve": {"gamma_dot_1_s": (m,), "tau_pa": (m,)} or "mu_pa_s" (m,)
-        instead of "tau_pa" - steady states, compared with :func:`steady_flow_curve`.
-      * kind="transient": {"t_s": (m,), "gamma_dot_1_s": (k,), "mu_pa_s": (k, m)} - k
-        constant-shear tests each started from lambda0 at t = 0 (:func:`constant_shear`).
-
-    Loss: mean of (ln model - ln data)^2 (squared relative error to first order).
-    The fields named in ``fit`` (any of mu0, alpha, T, n, lambda0, mu_max) are
-    optimised as logarithms, so they stay positive; all others are held at
-    ``init_params``.  ``optimizer``: "adam" (``optax.adam(learning_rate)``) or "lbfgs"
-    (``optax.lbfgs`` with its zoom line search; learning_rate unused).  ``steps``
-    optimiser iterations run inside one jitted ``lax.scan``.
-
-    Flow-curve data identify only mu0, n and alpha*T (and mu_max if the cap is hit):
-    fitting both alpha and T then moves log(alpha) and log(T) by identical amounts,
-    so alpha/T stays at its initial value.
-    """
-    names = tuple(fit)
-    for k in names:
-        if k not in _FITTABLE:
-            raise ValueError(f"cannot fit {k!r}; allowed: {', '.join(_FITTABLE)}")
-    if len(set(names)) != len(names) or not names:
-        raise ValueError(f"fit must name distinct parameters, got {names}")
-    if optimizer not in ("adam", "lbfgs"):
-        raise ValueError(f"optimizer = {optimizer!r} is invalid; allowed: 'adam' or 'lbfgs'")
-    steps = int(steps)
-    if steps < 1:
-        raise ValueError(f"steps = {steps} is invalid; allowed range: >= 1")
-    p0 = _as_float_params(init_params)
-    validate_params(p0)
-    for k in names:
-        if float(getattr(p0, k)) <= 0.0:
-            raise ValueError(f"initial {k} = {float(getattr(p0, k)):g} must be > 0 to be fitted in log space")
-    dtype = p0.mu0.dtype
-    rtol, atol = _tolerances(rtol, atol, dtype)
-    d = _prepare_data(data, kind, dtype)
-
-    def to_params(theta):
-        return p0._replace(**{k: jnp.exp(theta[i]) for i, k in enumerate(names)})
-
-    def loss_fn(theta):
-        return _loss(to_params(theta), d, kind, rtol, atol, int(max_steps))
-
-    theta0 = jnp.log(jnp.stack([getattr(p0, k) for k in names]))
-
-    if optimizer == "adam":
-        opt = optax.adam(learning_rate)
-        vg = jax.value_and_grad(loss_fn)
-
-        def step(carry, _):
-            theta, state = carry
-            loss, g = vg(theta)
-            updates, state = opt.update(g, state, theta)
-            return (optax.apply_updates(theta, updates), state), loss
-
-    else:
-        opt = optax.lbfgs()
-        vg_state = optax.value_and_grad_from_state(loss_fn)
-
-        def step(carry, _):
-            theta, state = carry
-            loss, g = vg_state(theta, state=state)
-            updates, new_state = opt.update(g, state, theta, value=loss, grad=g, value_fn=loss_fn)
-            new_theta = optax.apply_updates(theta, updates)
-            # Once converged (zero gradient) the line search can return NaN: keep theta.
-            ok = jnp.all(jnp.isfinite(new_theta))
-            theta = jnp.where(ok, new_theta, theta)
-            state = jax.tree.map(lambda a, b: jnp.where(ok, a, b), new_state, state)
-            return (theta, state), loss
-
-    @jax.jit
-    def run(theta0):
-        (theta, _), hist = jax.lax.scan(step, (theta0, opt.init(theta0)), None, length=steps)
-        return theta, hist, loss_fn(theta0), loss_fn(theta)
-
-    theta, hist, loss_initial, loss_final = run(theta0)
-    return FitResult(
-        params=to_params(theta),
-        loss_history=np.asarray(hist),
-        loss_initial=float(loss_initial),
-        loss_final=float(loss_final),
-        fitted=names,
-    )
 
 
 # --------------------------------------------------------------------------------------
