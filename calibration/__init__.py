@@ -2,7 +2,8 @@
 
 * ``load_profiles`` / ``Profile`` (``calibration.data``): measured flume profiles, CSV or HDF5.
 * ``ParameterSet`` / ``ParamSpec`` (``calibration.params``): which parameters are fitted, bounds, transforms.
-* ``ProfileExperiment``, ``FlowCurveExperiment``, ``joint_loss`` (``calibration.experiments``).
+* ``ProfileExperiment``, ``FlowCurveExperiment``, ``TransientExperiment``, ``joint_loss``
+  (``calibration.experiments``; the last two: rheometer data, fitted with ``fit`` like profiles).
 * ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam, multi-start by ``vmap``.
 * ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability.
 * ``sweep`` (``calibration.sweep``): a parameter grid as one ``vmap`` batch, sharded over devices.
@@ -13,7 +14,7 @@
 from mpmjax import deposited_volume, gaussian_kernel, height_profile, particle_volume, smooth_front
 
 from .data import DataError, Profile, load_profiles, write_profiles_csv
-from .experiments import FlowCurveExperiment, ProfileExperiment, joint_loss
+from .experiments import FlowCurveExperiment, ProfileExperiment, TransientExperiment, joint_loss
 from .fit import FitResult, fit
 from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
 from .sweep import sweep
@@ -28,6 +29,7 @@ __all__ = [
     "ParameterSet",
     "Profile",
     "ProfileExperiment",
+    "TransientExperiment",
     "Uncertainty",
     "deposited_volume",
     "fit",

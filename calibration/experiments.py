@@ -21,8 +21,12 @@ so an experiment with many stations does not swamp one with a single runout.
   experiment (default: 5 % of the largest measured height, a typical flume-profile
   scatter); ``sigma_known`` tells the uncertainty analysis whether to trust it or to
   estimate the noise from the residuals.
-* :class:`FlowCurveExperiment`: steady rheometer flow-curve points (Coussot only),
-  residual (ln tau_model - ln tau_data) / sigma_ln (relative error, default 5 %).
+* :class:`FlowCurveExperiment`: steady rheometer flow-curve points (any law with a steady
+  state, ``mpmjax.rheometer.steady_flow_curve``), residual (ln tau_model - ln tau_data) /
+  sigma_ln (relative error, default 5 %).
+* :class:`TransientExperiment`: constant-shear rheometer transients mu(t) at k rates, each
+  started from the law's initial internal state (``mpmjax.rheometer.constant_shear``),
+  residual (ln mu_model - ln mu_data) / sigma_ln (default 5 %).
 
 Any experiment works with any parameter set whose names are fields of its material.
 """
@@ -31,16 +35,17 @@ from __future__ import annotations
 
 import math
 
+import diffrax
 import jax.numpy as jnp
 import numpy as np
 
 import mpmjax
 from mpmjax import height_profile, restate, smooth_front
-from mpmjax.rheometer import steady_flow_curve
+from mpmjax.rheometer import constant_shear, steady_flow_curve, validate_params
 
 from .data import Profile
 
-__all__ = ["ProfileExperiment", "FlowCurveExperiment", "joint_loss", "joint_residuals"]
+__all__ = ["ProfileExperiment", "FlowCurveExperiment", "TransientExperiment", "joint_loss", "joint_residuals"]
 
 
 class ProfileExperiment:
@@ -183,12 +188,36 @@ class ProfileExperiment:
         return jnp.concatenate(r)
 
 
-class FlowCurveExperiment:
-    """Steady rheometer flow curve (Coussot): gamma_dot_1_s (m,) [1/s], tau_pa (m,) [Pa].
+def _rheometer_material(material, name):
+    """Check a rheometer experiment's material: the parameters of a registered law, each in
+    its declared range.  Returns its dtype."""
+    try:
+        mpmjax.law_of(material)
+        validate_params(material)
+    except ValueError as e:
+        raise ValueError(f"{name}: {e}") from None
+    return jnp.result_type(*material)
 
-    Residual (ln tau_model - ln tau_data) / sigma_ln with sigma_ln the relative standard
-    deviation of tau (default 0.05; ``sigma_known`` False unless given).  The model is
-    ``mpmjax.rheometer.steady_flow_curve``; it depends on alpha and T only through alpha*T.
+
+def _positive(name, field, a):
+    bad = np.flatnonzero(~(np.isfinite(a) & (a > 0)))
+    if bad.size:
+        raise ValueError(f"{name}: {field}[{bad[0]}] = {float(a.flat[bad[0]])!r}; allowed range: > 0 and finite")
+
+
+def _with(base, values: dict, dt):
+    """``base`` with the fitted ``values`` (names that are not fields of it are ignored)."""
+    return base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items() if k in type(base)._fields})
+
+
+class FlowCurveExperiment:
+    """Steady rheometer flow curve: gamma_dot_1_s (m,) [1/s], tau_pa (m,) [Pa].
+
+    material: any registered law's parameters whose law has a steady state (Coussot, or a
+    law without internal variables).  Residual (ln tau_model - ln tau_data) / sigma_ln with
+    sigma_ln the relative standard deviation of tau (default 0.05; ``sigma_known`` False
+    unless given).  The model is ``mpmjax.rheometer.steady_flow_curve``; for Coussot it
+    depends on alpha and T only through alpha*T.
     """
 
     def __init__(self, material, gamma_dot_1_s, tau_pa, *, sigma_ln=None, weight=1.0, name="flow curve"):
@@ -196,14 +225,14 @@ class FlowCurveExperiment:
         tau = np.asarray(tau_pa, float)
         if g.ndim != 1 or g.shape != tau.shape or g.size < 2:
             raise ValueError(f"{name}: gamma_dot_1_s {g.shape} and tau_pa {tau.shape} must be equal 1-D, >= 2 points")
-        for nm, a in (("gamma_dot_1_s", g), ("tau_pa", tau)):
-            bad = np.flatnonzero(~(np.isfinite(a) & (a > 0)))
-            if bad.size:
-                raise ValueError(f"{name}: {nm}[{bad[0]}] = {a[bad[0]]!r}; allowed range: > 0 and finite")
-        if type(material).__name__ != "CoussotParams":
-            raise ValueError(f"{name}: flow curves are modelled for Coussot material; got {type(material).__name__}")
+        _positive(name, "gamma_dot_1_s", g)
+        _positive(name, "tau_pa", tau)
+        dt = _rheometer_material(material, name)
+        try:
+            steady_flow_curve(material, g[:1])
+        except NotImplementedError as e:
+            raise ValueError(f"{name}: no steady flow curve for {type(material).__name__}: {e}") from None
         self.base, self.name, self.weight = material, name, float(weight)
-        dt = jnp.result_type(material.mu0)
         self._g = jnp.asarray(g, dt)
         self._lt = jnp.log(jnp.asarray(tau, dt))
         self.sigma_ln = 0.05 if sigma_ln is None else float(sigma_ln)
@@ -211,10 +240,70 @@ class FlowCurveExperiment:
         self.n_residuals = g.size
 
     def residuals(self, values: dict):
-        dt = jnp.result_type(self.base.mu0)
-        mat = self.base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items() if k in type(self.base)._fields})
+        mat = _with(self.base, values, jnp.result_type(*self.base))
         tau, _ = steady_flow_curve(mat, self._g)
         return (jnp.log(tau) - self._lt) / self.sigma_ln
+
+
+class TransientExperiment:
+    """Constant-shear rheometer transients: t_s (m,) [s], gamma_dot_1_s (k,) [1/s], mu_pa_s
+    (k, m) [Pa s]: k tests, test i at the constant rate gamma_dot_1_s[i] from t = 0, each
+    started from the law's initial internal state (Coussot: lambda0).
+
+    Residual (ln mu_model - ln mu_data) / sigma_ln, row by row (test by test), with sigma_ln
+    the relative standard deviation of mu (default 0.05; ``sigma_known`` False unless given).
+    The model is ``mpmjax.rheometer.constant_shear`` (Kvaerno5, tolerances ``rtol``/``atol``,
+    default 1e-8/1e-10: model errors ~1e-7 in ln mu, far below any measurement's), with
+    ``diffrax.DirectAdjoint`` so that both forward-mode (``calibration.fit``'s default for
+    few parameters, ``gauss_newton``) and reverse-mode derivatives work.  For Coussot the
+    relaxation rate alpha*gdot identifies alpha and the steady structure 1/(alpha T gdot)
+    then T, which a flow curve cannot separate.
+    """
+
+    def __init__(
+        self,
+        material,
+        t_s,
+        gamma_dot_1_s,
+        mu_pa_s,
+        *,
+        sigma_ln=None,
+        weight=1.0,
+        name="transient",
+        rtol=1e-8,
+        atol=1e-10,
+        max_steps=4096,
+    ):
+        t = np.asarray(t_s, float)
+        g = np.atleast_1d(np.asarray(gamma_dot_1_s, float))
+        mu = np.asarray(mu_pa_s, float)
+        if t.ndim != 1 or t.size < 1 or g.ndim != 1:
+            raise ValueError(f"{name}: t_s {t.shape} and gamma_dot_1_s {g.shape} must be 1-D and non-empty")
+        if mu.shape != (g.size, t.size):
+            raise ValueError(f"{name}: mu_pa_s has shape {mu.shape}; expected (rates, times) = {(g.size, t.size)}")
+        if not (np.all(np.isfinite(t)) and np.all(t >= 0) and np.all(np.diff(t) >= 0)):
+            raise ValueError(f"{name}: t_s must be finite, >= 0 and non-decreasing [s]")
+        bad = np.flatnonzero(~(np.isfinite(g) & (g >= 0)))
+        if bad.size:
+            raise ValueError(f"{name}: gamma_dot_1_s[{bad[0]}] = {float(g[bad[0]])!r}; allowed range: >= 0 and finite")
+        _positive(name, "mu_pa_s", mu)
+        dt = _rheometer_material(material, name)
+        self.base, self.name, self.weight = material, name, float(weight)
+        self._t = jnp.asarray(t, dt)
+        self._g = jnp.asarray(g, dt)
+        self._lmu = jnp.log(jnp.asarray(mu, dt))
+        self.sigma_ln = 0.05 if sigma_ln is None else float(sigma_ln)
+        self.sigma_known = sigma_ln is not None
+        self.solver = {"rtol": float(rtol), "atol": float(atol), "max_steps": int(max_steps)}
+        self.n_residuals = mu.size
+
+    def model(self, values: dict):
+        """Model viscosity mu [Pa s], (k, m), at the fitted ``values``."""
+        mat = _with(self.base, values, jnp.result_type(*self.base))
+        return constant_shear(mat, self._g, self._t, adjoint=diffrax.DirectAdjoint(), **self.solver).mu_pa_s
+
+    def residuals(self, values: dict):
+        return jnp.ravel((jnp.log(self.model(values)) - self._lmu) / self.sigma_ln)
 
 
 def frames_for(times, t_end_default, n_frames_default):

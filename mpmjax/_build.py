@@ -297,6 +297,7 @@ def build(cfg: dict) -> Setup:
         shape=cfg["numerics.shape"],
         lp_cells=0.5 / cfg["numerics.ppc"],
         grid_density_cap=float(cfg["numerics.grid_density_cap"]),
+        volume_averaging=cfg["numerics.volume_averaging"],
         transfer=cfg["numerics.transfer"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

@@ -162,6 +162,8 @@ class Scene:
       dtype: ``float32`` or ``float64``.
       grid_density_cap: 0 (off) or the tolerance of the grid volume check: J <= (1 + cap) / phi,
         phi the grid-measured packing fraction at the particle (``_transfer.packing_fraction``).
+      volume_averaging: ``none`` or ``jbar``: the volume increment of each step averaged through
+        the grid (F-bar / J-bar against volumetric locking; ``_transfer`` docstring).
     """
 
     dim: int
@@ -189,6 +191,7 @@ class Scene:
     inflow: Inflow | None = None
     terrain: Terrain | None = None
     grid_density_cap: float = 0.0
+    volume_averaging: str = "none"
 
     @property
     def n_nodes(self) -> int:

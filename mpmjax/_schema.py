@@ -131,6 +131,16 @@ _HEAD: dict[str, Key] = {
         lo=0.0,
         hi=1.0,
     ),
+    "numerics.volume_averaging": Key(
+        str,
+        "none",
+        "-",
+        "Volumetric anti-locking (off by default): jbar replaces each particle's volume change per step by its "
+        "mass-weighted average through the grid (F-bar / J-bar, Zhao, Jiang & Choo 2023), so a stiff (nearly "
+        "incompressible) material flows instead of locking; it also calms J in a deposit's bottom row, not the "
+        "J noise above it. About 30 % more per step; see docs/validation.md.",
+        choices=("none", "jbar"),
+    ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),

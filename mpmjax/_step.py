@@ -16,7 +16,10 @@ composes them:
 4. G2P (``_transfer.make_g2p``): velocity (APIC or FLIP/PIC blend), affine matrix, velocity
    gradient; then here the position, particles pushed back out of walls and terrain (never
    silently clamped elsewhere) and wrapped on periodic axes;
-5. particle update (here, with ``_constitutive``): J <- J det(I + dt L) (with
+5. particle update (here, with ``_constitutive``): J <- J det(I + dt L), or with
+   ``numerics.volume_averaging = "jbar"`` J <- J (1 + dbar) and L <- L-bar, dbar the volume
+   increment averaged through the grid (``_transfer.volume_increment``, ``volume_average``;
+   formulas and references in the ``_transfer`` docstring) (with
    ``numerics.grid_density_cap``, then capped by the grid-measured packing,
    ``_transfer.packing_fraction`` with ``_boundary.node_fill``); rheology (structure,
    viscosity: ``_rheology``); shear measures and deviatoric stress by the Maxwell exponential
@@ -36,7 +39,7 @@ from . import _shapes
 from ._boundary import _wall_masks, apply_wall, make_release, node_fill, pipe_nodes, terrain_velocity
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._scene import Params, Scene, State
-from ._transfer import make_g2p, make_p2g, packing_fraction
+from ._transfer import make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
 EMPTY_NODE_FRACTION = 1e-9
@@ -65,6 +68,9 @@ def make_step(scene: Scene):
         t_nrm = terrain.normal(xn[:, :-1])
 
     cap = scene.grid_density_cap
+    jbar = scene.volume_averaging == "jbar"
+    if scene.volume_averaging not in ("none", "jbar"):
+        raise ValueError(f"volume_averaging {scene.volume_averaging!r}; allowed: 'none', 'jbar'")
     fill = node_fill(scene) if cap > 0.0 else None
 
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
@@ -120,7 +126,20 @@ def make_step(scene: Scene):
             x = jnp.where(jnp.asarray(per)[None, :], wrapped, x)
 
         # particle update: volume, rheology, stress
-        J = state.J * jnp.linalg.det(jnp.eye(dim, dtype=dtp)[None] + dt * L)
+        if jbar:
+            # J-bar (numerics.volume_averaging): the step's volume increment averaged over the
+            # particles around, through the grid; L becomes that of the assumed increment
+            # s (I + dt L), s = ((1 + dbar)/(1 + delta))^(1/dim), so det(I + dt L) = 1 + dbar.
+            delta = volume_increment(L, dt)
+            mass_p = params.material.rho * state.vol0 * state.active
+            dbar = volume_average(scene, st, mass_p, delta[:, None], inv_m, has)[:, 0]
+            pos = (delta > -1.0) & (dbar > -1.0)
+            ln_s = jnp.where(pos, jnp.log1p(jnp.where(pos, dbar, 0.0)) - jnp.log1p(jnp.where(pos, delta, 0.0)), 0.0)
+            s_1 = jnp.expm1(ln_s / dim)[:, None, None]  # s - 1, accurate for s near 1
+            L = L + s_1 * L + (s_1 / dt) * jnp.eye(dim, dtype=dtp)[None]
+            J = state.J + state.J * dbar
+        else:
+            J = state.J * jnp.linalg.det(jnp.eye(dim, dtype=dtp)[None] + dt * L)
         if fill is not None:
             # grid volume check (numerics.grid_density_cap): the reference volume packed around the
             # particle, measured on the grid (phi = nodal mass / (rho h^d), divided by the packing a

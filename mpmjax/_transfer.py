@@ -11,6 +11,37 @@
   velocity gradient L from the nodal velocities.
 * ``packing_fraction``: the grid-measured packing at each particle (the grid volume check,
   ``numerics.grid_density_cap``), with the wall correction ``_boundary.node_fill``.
+* ``volume_increment`` and ``volume_average``: the J-bar (assumed-deformation-gradient)
+  volume averaging of ``numerics.volume_averaging = "jbar"`` (Zhao, Jiang & Choo 2023), below.
+
+J-bar volume averaging (``numerics.volume_averaging = "jbar"``)
+----------------------------------------------------------------
+Pressure from each particle's own J = det F locks a nearly incompressible material: with
+ppc^dim particles per cell each holding its volume, the few nodal velocities per cell cannot
+satisfy every particle's constraint, and the flow stiffens (Coombs et al. 2018; Zhao, Jiang &
+Choo 2023, "Circumventing volumetric locking in explicit material point methods: a simple,
+efficient, and general approach", IJNME).  The F-bar remedy replaces each particle's volume
+change over the step by its average over the particles around it, through the same transfers:
+
+1. the particle's volume increment over the step, delta_p = det(I + dt L_p) - 1 [-]
+   (``volume_increment``: expanded as tr A + minors + det A with A = dt L, so a tiny
+   increment is not lost to the rounding of det(I + A) near 1);
+2. a mass-weighted nodal average (P2G with the stencil of the step, one scalar channel):
+   delta_i = sum_p w_ip m_p delta_p / m_i, with m_i = sum_p w_ip m_p the nodal mass [kg; 2D kg/m]
+   (empty nodes, and in float32 nodes below the step's empty-node floor, carry 0);
+3. back to the particle, normalised by the weight of the nodes that hold mass:
+   dbar_p = sum_i w_ip delta_i / sum_{i: m_i > 0} w_ip;
+4. J_p <- J_p (1 + dbar_p), and the velocity gradient the stress update reads becomes that of
+   the assumed increment F-bar = s (I + dt L), s = ((1 + dbar_p)/(1 + delta_p))^(1/dim):
+   L-bar = s L + (s - 1)/dt I, so det(I + dt L-bar) = 1 + dbar_p; its deviator in 3D is s d',
+   in 2D plane strain the out-of-plane part d'_zz = -tr(d-bar)/3 sees the averaged dilatation.
+
+The average is over reference volume (m_p = rho V0_p, rho uniform), of the increment, not of J
+itself: J keeps its history and a uniform field is returned unchanged (a filled box, walls
+and ghost nodes included, gives back exactly each particle's delta since step 3 divides by the
+weights actually used); a field linear in space is reproduced away from free surfaces.
+Inactive particles (parked inflow pool, lost) have zero mass: they add nothing, and the step
+keeps their J.  Periodic axes need nothing: the stencil's indices already wrap.
 
 Nodes are numbered flat in C order over ``scene.grid_shape``; node i sits at
 ``grid_origin + index * h``.  Per-particle arrays have the leading axis n, stencil arrays
@@ -182,3 +213,36 @@ def packing_fraction(scene: Scene, mass, st, rho, fill):
     phi_p = jnp.sum(st.w * phi_node[st.idx], axis=1)
     fill_p = jnp.sum(st.w * jnp.asarray(fill, dtp)[st.idx], axis=1)
     return phi_p / jnp.maximum(fill_p, 1e-6)
+
+
+def volume_increment(L, dt):
+    """delta = det(I + dt L) - 1 [-] per particle, without forming det(I + A) near 1.
+
+    With A = dt L: 2D tr A + det A; 3D tr A + (sum of the principal 2x2 minors) + det A.
+    """
+    A = dt * L
+    dim = A.shape[-1]
+    if dim == 2:
+        return A[:, 0, 0] + A[:, 1, 1] + (A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])
+    tr = A[:, 0, 0] + A[:, 1, 1] + A[:, 2, 2]
+    minors = sum(A[:, i, i] * A[:, j, j] - A[:, i, j] * A[:, j, i] for i, j in ((0, 1), (0, 2), (1, 2)))
+    return tr + minors + jnp.linalg.det(A)
+
+
+def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has):
+    """The mass-weighted average through the grid of the particle fields ``q`` (n, k) (J-bar).
+
+    ``st`` the stencil of the step's P2G, ``mass_p`` (n,) the particle masses (0 when inactive),
+    ``inv_m`` (N,) 1/m_i on the nodes that hold mass and 0 elsewhere, ``has`` (N,) bool those
+    nodes.  Nodal q_i = sum_p w_ip m_p q_p / m_i; at the particle
+    sum_i w_ip q_i / sum_{i: has} w_ip (the module docstring).  A particle none of whose
+    nodes holds mass keeps its own q.
+    """
+    k = q.shape[1]
+    num = jnp.zeros((scene.n_nodes, k), q.dtype)
+    num = num.at[st.idx.reshape(-1)].add(((mass_p[:, None] * st.w)[:, :, None] * q[:, None, :]).reshape(-1, k))
+    q_node = num * inv_m[:, None]
+    wsum = jnp.sum(st.w * has[st.idx].astype(q.dtype), axis=1)
+    ok = wsum > 0.0
+    qbar = _wsum(st.w, q_node[st.idx]) / jnp.where(ok, wsum, 1.0)[:, None]
+    return jnp.where(ok[:, None], qbar, q)

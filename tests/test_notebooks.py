@@ -122,4 +122,4 @@ def test_api_examples(monkeypatch):
     # twin fit: mu0 = 4 Pa s recovered within 3 standard deviations; rheometer fit to 1e-3
     std = float(ns["unc"].std[0])
     assert 0 < std < 1.0 and abs(ns["result"].params["mu0"] - 4.0) < 3 * std
-    assert float(ns["fitted"].params.mu0) == pytest.approx(4.0, rel=1e-3)
+    assert ns["fitted"].params["mu0"] == pytest.approx(4.0, rel=1e-3)
