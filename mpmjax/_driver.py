@@ -11,7 +11,9 @@ interrupted run (130 Ctrl-C, 143 SIGTERM).
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
+import os
 import shlex
 import signal
 import sys
@@ -190,6 +192,48 @@ def resume_command(out: Path) -> str:
     return f"mpmjax run --resume {shlex.quote(str(out))}"
 
 
+LOCK_NAME = ".mpmjax.lock"  # in the output folder: held (flock) by the run writing there
+
+
+class OutputBusy(SceneError):
+    """The output folder is being written by another run (exit status 2, like invalid input)."""
+
+
+class OutputLock:
+    """An exclusive lock on an output folder, held for a whole run: ``flock`` on
+    ``OUT/.mpmjax.lock``, which holds the owner's process id.  The kernel releases a flock when
+    its process ends, however it ends, so a lock left by a killed run is never stale: the
+    next run takes it over.  A second run into a held folder gets ``OutputBusy`` before it
+    creates or truncates anything there."""
+
+    def __init__(self, out: Path):
+        self.out = Path(out)
+        self.fd = None
+
+    def acquire(self) -> None:
+        if self.fd is not None:
+            return
+        path = self.out / LOCK_NAME
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise OutputBusy(
+                f"--out {self.out}: another mpmjax run (process {holder}) is writing to this folder; "
+                "wait for it to finish, or choose another --out"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self.fd = fd
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # closing the descriptor releases the flock
+            self.fd = None
+
+
 def run_scene(
     scene: str | None,
     out: Path,
@@ -200,6 +244,32 @@ def run_scene(
     on_frame=None,
     animate: bool = False,
     staged: bool = True,
+) -> dict:
+    """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``
+    (see ``_run_scene`` for the whole contract).  The folder is locked for the whole run
+    (``OutputLock``): a second run into it raises ``OutputBusy`` (a ``SceneError``) before it
+    creates or truncates anything."""
+    lock = OutputLock(Path(out))
+    try:
+        return _run_scene(
+            scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock=lock
+        )
+    finally:
+        lock.release()
+
+
+def _run_scene(
+    scene: str | None,
+    out: Path,
+    overrides: list[str] | None,
+    quiet: bool = False,
+    checkpoint_every: int = CHECKPOINT_EVERY,
+    resume: bool = False,
+    on_frame=None,
+    animate: bool = False,
+    staged: bool = True,
+    *,
+    lock: OutputLock,
 ) -> dict:
     """Run a scene frame by frame, writing result.h5, summary.json and result.png to ``out``
     (3D scenes also plan_view.h5, plan_view.png and sections.png; with ``animate=True``
@@ -228,6 +298,8 @@ def run_scene(
     ckpt_path = out / "checkpoint.h5"
     ckpt = None
     if resume:
+        if out.is_dir():
+            lock.acquire()  # before the checkpoint is read: no other run may change it meanwhile
         if not ckpt_path.is_file():
             done = (out / "result.h5").is_file() and _result_complete(out / "result.h5")
             raise SceneError(
@@ -261,6 +333,7 @@ def run_scene(
     setup = build(cfg)
     sc, info = setup.scene, setup.info
     out.mkdir(parents=True, exist_ok=True)
+    lock.acquire()  # before anything in the folder is created or truncated
     log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
     log(
         f"scene {cfg['name']}: {sc.dim}D, {sc.n_particles} particles, grid {sc.grid_shape}, h = {sc.h} m, "
