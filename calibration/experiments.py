@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import mpmjax
-from mpmjax import height_profile, restate, smooth_front
+from mpmjax import free_surface_front, height_profile, restate, smooth_front
 from mpmjax.rheometer import constant_shear, steady_flow_curve, validate_params
 
 from .data import Profile
@@ -57,8 +57,11 @@ class ProfileExperiment:
     cell size); sigma_m: profile standard deviation [m] where the data give none (default
     5 % of the largest measured height; then ``sigma_known`` is False unless set);
     runout_m / runout_sigma_m: a measured final runout [m] and its standard deviation
-    [m] (default 2 cells), compared with ``smooth_front`` (threshold height
-    ``front_threshold_m``, default 10 % of the largest measured height); weight: w.
+    [m] (default 2 cells), compared with the model's front: by default the headline runout's
+    definition (``mpmjax.free_surface_front``: thickness >= 10 % of the model's thickest
+    point, docs/output.md "Runout"), so a runout fitted here and the summary.json of a run
+    measure the same thing; with ``front_threshold_m`` [m] given, ``smooth_front`` at that
+    fixed thickness instead (for data measured at a known depth); weight: w.
     """
 
     def __init__(
@@ -123,8 +126,8 @@ class ProfileExperiment:
         ]
         self.runout_m = None if runout_m is None else float(runout_m)
         self.runout_sigma_m = float(2 * sc.h if runout_sigma_m is None else runout_sigma_m)
-        self.front_threshold_m = float(0.1 * hmax if front_threshold_m is None else front_threshold_m)
-        if self.runout_m is not None and not self.front_threshold_m > 0:
+        self.front_threshold_m = None if front_threshold_m is None else float(front_threshold_m)
+        if self.runout_m is not None and self.front_threshold_m is not None and not self.front_threshold_m > 0:
             raise ValueError(f"{name}: front_threshold_m = {front_threshold_m}; allowed range: > 0 [m]")
         self.n_frames_needed = max(idx + [sc.n_frames if self.runout_m is not None else 0]) or 1
         self.n_residuals = sum(int(p.x_m.size) for p in self.profiles) + (self.runout_m is not None)
@@ -164,6 +167,8 @@ class ProfileExperiment:
     def _front(self, st, fr):
         sc = self.setup.scene
         xp, act = self._at(st, fr, self.setup.scene.n_frames)
+        if self.front_threshold_m is None:
+            return free_surface_front(xp, st.vol0, act, bandwidth=self.bandwidth_m, x_lo=sc.lo[0], x_hi=sc.hi[0])
         return smooth_front(
             xp,
             st.vol0,

@@ -28,7 +28,16 @@ from ._driver import Interrupted, run_scene
 from ._health import RunFailure
 from ._io import atomic_write_text
 from ._metrics import kinetic_energy, time_to_rest
-from ._observables import deposited_volume, gaussian_kernel, height_profile, particle_volume, runout, smooth_front
+from ._observables import (
+    FRONT_FRACTION,
+    deposited_volume,
+    free_surface_front,
+    gaussian_kernel,
+    height_profile,
+    particle_volume,
+    runout,
+    smooth_front,
+)
 from ._rheology import (
     Bingham,
     BinghamParams,
@@ -71,6 +80,8 @@ __all__ = [
     "law_of",
     "material_parameters",
     "runout",
+    "free_surface_front",
+    "FRONT_FRACTION",
     "height_profile",
     "smooth_front",
     "deposited_volume",

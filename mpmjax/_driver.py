@@ -31,7 +31,6 @@ from ._build import build
 from ._schema import SceneError, load_scene
 from ._io import FrameWriter, _jsonable, atomic_write_text, config_hash, read_checkpoint, read_result
 from ._io import write_checkpoint as _write_ckpt
-from ._observables import runout
 from ._simulate import StagedAdvance, make_prefix_advance
 from ._version import __version__
 from ._xdmf import write_xdmf
@@ -356,11 +355,14 @@ def _run_scene(
     )
     log(f"compiled in {compile_s:.1f} s{staged_note}")
     rho = float(setup.params.material.rho)
-    spacing, axis, origin = info["particle_spacing_m"], info["runout_axis"], info["runout_origin_m"]
+    gauge = _metrics.RunoutGauge.of(sc, info)
 
     def front(st):
-        # no active material yet (a pipe inflow before its start): the front is at the origin
-        return float(runout(st.x, st.active, axis, origin, spacing)) if bool(np.any(st.active)) else 0.0
+        # no active material yet (a pipe inflow before its start): both fronts are at the origin
+        return gauge.front(st.x, st.vol0, st.active)
+
+    def farthest(st):
+        return gauge.farthest(st.x, st.active)
 
     def energy(st):
         return float(_metrics.kinetic_energy(np.asarray(st.v), np.asarray(st.vol0), np.asarray(st.active), rho))
@@ -371,6 +373,7 @@ def _run_scene(
         acc = dict(
             times=[0.0],
             fronts=[front(state)],
+            farthest=[farthest(state)],
             kinetic=[energy(state)],
             lost_reported=0,
             n_outflow=0,
@@ -382,6 +385,12 @@ def _run_scene(
         st_np, done, _, meta = ckpt
         state = jax.tree_util.tree_map(jnp.asarray, st_np)
         acc = meta["acc"]
+        if "farthest" not in acc:
+            raise SceneError(
+                f"--resume {out}: the checkpoint was written by mpmjax {meta.get('code_version', '?')}, before the "
+                "free-surface runout (docs/output.md 'Runout'); its runout series cannot be continued: rerun without "
+                "--resume"
+            )
         log(f"resuming {out} from the checkpoint at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s)")
     last_ckpt = done if ckpt is not None else -1
     meta_base = dict(scene_source=source, overrides=overrides, cfg=_jsonable(cfg), code_version=__version__)
@@ -429,6 +438,7 @@ def _run_scene(
                     state, done = new, i + 1
                     acc["times"].append(done * sc.steps_per_frame * sc.dt)
                     acc["fronts"].append(front(state))
+                    acc["farthest"].append(farthest(state))
                     acc["kinetic"].append(energy(state))
                     acc["n_outflow"] += int(len(outflow))
                     acc["wall_s"] = wall0 + time.perf_counter() - t_run
@@ -517,10 +527,17 @@ def _run_scene(
         "times_s": times,
         "runout_m": fronts,
         "final_runout_m": fronts[-1],
+        "runout_farthest_particle_m": acc["farthest"],
+        "final_runout_farthest_particle_m": acc["farthest"][-1],
         **_scenario_metrics(setup, state, times, kinetic),
-        "runout_definition": (
-            f"max over active particles of x[{axis}] + half the initial particle spacing ({spacing / 2:g} m), "
-            f"minus runout_origin_m = {origin:g} m"
+        "runout_definition": gauge.definition(),
+        "runout_farthest_particle_definition": gauge.farthest_definition(),
+        "runout_front_fraction": gauge.fraction,
+        # the domain face the runout runs towards, measured like the runout; a front within one cell
+        # of it was stopped by the wall, not by the material (docs/output.md "Runout")
+        "runout_wall_m": sc.hi[gauge.axis] - gauge.origin,
+        "runout_capped_by_wall": bool(
+            max(fronts[-1], acc["farthest"][-1]) >= sc.hi[gauge.axis] - gauge.origin - sc.h
         ),
         "dt_limits": {
             k: info[k]
@@ -561,8 +578,14 @@ def _run_scene(
             f"lobe width {summary['lobe_width_m']} m (thickness > {summary['lobe_width_threshold_m']:g} m); "
             f"channels: {'yes, from t = ' + format(ch['first_time_s'], 'g') + ' s' if ch['detected'] else 'no'}"
         )
+    if summary["runout_capped_by_wall"]:
+        log(
+            f"note: the material reached the domain wall at {sc.hi[gauge.axis]:g} m along axis {gauge.axis}: "
+            "the runout is capped by the wall, not set by the material (runout_capped_by_wall in summary.json)"
+        )
     log(
-        f"final runout {summary['final_runout_m']:.3f} m at t = {sc.t_end:g} s; wall {wall:.1f} s "
+        f"final runout {summary['final_runout_m']:.3f} m at t = {sc.t_end:g} s "
+        f"(farthest particle {summary['final_runout_farthest_particle_m']:.3f} m); wall {wall:.1f} s "
         f"({summary['particle_steps_per_s']:.3g} particle-steps/s); lost particles: {summary['n_lost']}"
     )
     return summary

@@ -24,6 +24,15 @@ Definitions (also in ``docs/scenarios.md``):
     ``trim`` of its length removed at each end (the toe and the inflow mound).  The
     slope is negative for a surface falling in +x.  nan with fewer than 3 points.
 
+``RunoutGauge``
+    The run's runout, both definitions of ``mpmjax._observables`` (docs/output.md "Runout"):
+    ``front`` (headline: the free-surface front, thickness >= 10 % of the frame's thickest
+    point) and ``farthest`` (the farthest particle).  In 3D the thickness is the rest volume per
+    plan-view bin of one cell (``thickness_map``), its largest value across the flow in each
+    column along the runout axis, and the front the last column at or above the threshold,
+    interpolated linearly to where the envelope crosses it.  A runout axis along the vertical
+    (the last axis) has no free-surface profile: the front is then the farthest particle.
+
 Plan-view metrics of 3D runs (``plan_view_summary``; x is the flow axis, y lateral, z normal
 to the base; bins of one cell size h on the run's x-y grid):
 
@@ -54,8 +63,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 import h5py
+import jax
 import jax.numpy as jnp
 import numpy as np
+
+from ._observables import FRONT_FRACTION, free_surface_front, front_stations, height_profile, runout
 
 
 def _xp(*arrays):
@@ -561,3 +573,150 @@ def plan_view_summary(result, path=None) -> dict:
             "mirrored": mirror is not None,
         },
     }
+
+
+# --- runout -----------------------------------------------------------------------------------
+
+
+class RunoutGauge(NamedTuple):
+    """How a run's runout is measured: along ``axis`` from ``origin`` [m] (module docstring).
+
+    ``cell``: the cell size h [m] (kernel bandwidth in 2D, plan-view bin in 3D); ``spacing``: the
+    initial particle spacing h / ppc [m]; ``lo`` / ``hi``: the domain's corners [m].
+    """
+
+    dim: int
+    axis: int
+    origin: float
+    cell: float
+    spacing: float
+    lo: tuple
+    hi: tuple
+    fraction: float = FRONT_FRACTION
+
+    @classmethod
+    def of(cls, scene, info) -> RunoutGauge:
+        """The gauge of a built run (``mpmjax.build``: its ``scene`` and ``info``)."""
+        return cls(
+            dim=int(scene.dim),
+            axis=int(info["runout_axis"]),
+            origin=float(info["runout_origin_m"]),
+            cell=float(scene.h),
+            spacing=float(info["particle_spacing_m"]),
+            lo=tuple(float(v) for v in scene.lo),
+            hi=tuple(float(v) for v in scene.hi),
+        )
+
+    @property
+    def on_profile(self) -> bool:
+        """True when the runout axis is horizontal (the front is read off the free surface)."""
+        return self.axis != self.dim - 1
+
+    def farthest(self, x, active) -> float:
+        """Farthest active particle + spacing/2 - origin [m]; 0 with no active particle."""
+        a = np.asarray(active, bool)
+        if not a.any():
+            return 0.0
+        return float(runout(np.asarray(x), a, self.axis, self.origin, self.spacing))
+
+    def front(self, x, vol0, active) -> float:
+        """Headline runout [m]: the free-surface front minus the origin; 0 with no active particle."""
+        a = np.asarray(active, bool)
+        if not a.any():
+            return 0.0
+        if not self.on_profile:
+            return self.farthest(x, a)
+        if self.dim == 2:
+            x = np.asarray(x)
+            vol = np.broadcast_to(np.asarray(vol0, x.dtype), a.shape)
+            f = _front_2d(self.cell, self.lo[0], self.hi[0], self.fraction)
+            return float(f(x, vol, a)) - self.origin
+        return plan_front(x, vol0, a, self) - self.origin
+
+    def max_thickness(self, x, vol0, active) -> float:
+        """Thickest point of the deposit [m], as the front measures thickness (2D: the kernel
+        profile's largest value; 3D: the thickest plan-view bin); 0 with no active particle."""
+        a = np.asarray(active, bool)
+        if not a.any():
+            return 0.0
+        if self.dim == 2:
+            x = np.asarray(x)
+            vol = np.broadcast_to(np.asarray(vol0, x.dtype), a.shape)
+            return float(_profile_max_2d(self.cell, self.lo[0], self.hi[0])(x, vol, a))
+        edges = [self.lo[k] + self.cell * np.arange(int(round((self.hi[k] - self.lo[k]) / self.cell)) + 1) for k in (0, 1)]
+        return float(thickness_map(np.asarray(x, float), vol0, a, edges[0], edges[1]).max())
+
+    def definition(self) -> str:
+        """One line for summary.json's ``runout_definition``."""
+        if not self.on_profile:
+            return f"runout axis {self.axis} is vertical: the farthest-particle runout ({self.farthest_definition()})"
+        how = (
+            f"height profile of the rest volumes, Gaussian kernel of bandwidth one cell ({self.cell:g} m)"
+            if self.dim == 2
+            else f"rest-volume thickness per plan-view bin of one cell ({self.cell:g} m), largest across the flow"
+        )
+        return (
+            f"free-surface front: the farthest position along axis {self.axis} where the deposit thickness ({how}) "
+            f"is at least {100 * self.fraction:g} % of the frame's thickest point, minus runout_origin_m = "
+            f"{self.origin:g} m"
+        )
+
+    def farthest_definition(self) -> str:
+        return (
+            f"max over active particles of x[{self.axis}] + half the initial particle spacing "
+            f"({self.spacing / 2:g} m), minus runout_origin_m = {self.origin:g} m"
+        )
+
+
+_FRONT_2D: dict = {}
+
+
+def _front_2d(cell, x_lo, x_hi, fraction):
+    """The jitted 2D ``free_surface_front`` for one gauge (cached: compiled once per shape)."""
+    key = (cell, x_lo, x_hi, fraction)
+    if key not in _FRONT_2D:
+        n = front_stations(x_lo, x_hi, cell)
+        _FRONT_2D[key] = jax.jit(
+            lambda x, v, a: free_surface_front(x, v, a, bandwidth=cell, x_lo=x_lo, x_hi=x_hi, fraction=fraction, n_grid=n)
+        )
+    return _FRONT_2D[key]
+
+
+_PROFILE_MAX_2D: dict = {}
+
+
+def _profile_max_2d(cell, lo, hi):
+    """The jitted largest value of the 2D kernel height profile (bandwidth ``cell``) over the
+    stations of ``free_surface_front`` on [lo, hi] (cached)."""
+    key = (cell, lo, hi)
+    if key not in _PROFILE_MAX_2D:
+        grid = np.linspace(lo, hi, front_stations(lo, hi, cell))
+        _PROFILE_MAX_2D[key] = jax.jit(
+            lambda x, v, a: jnp.max(height_profile(x, v, a, jnp.asarray(grid, x.dtype), bandwidth=cell))
+        )
+    return _PROFILE_MAX_2D[key]
+
+
+def plan_front(x, vol0, active, gauge: RunoutGauge) -> float:
+    """3D free-surface front [m] (a position along ``gauge.axis``; module docstring)."""
+    along = gauge.axis
+    across = 1 - along  # the other horizontal axis (the vertical is the last)
+    h = gauge.cell
+    edges = [
+        gauge.lo[k] + h * np.arange(int(round((gauge.hi[k] - gauge.lo[k]) / h)) + 1) for k in (along, across)
+    ]
+    x = np.asarray(x, float)
+    xs = np.stack([x[:, along], x[:, across], x[:, 2]], axis=1)
+    th = thickness_map(xs, vol0, active, edges[0], edges[1])
+    prof = th.max(axis=1)
+    env = np.maximum.accumulate(prof[::-1])[::-1]
+    thr = gauge.fraction * prof.max()
+    if not thr > 0:
+        return gauge.origin
+    centres = 0.5 * (edges[0][1:] + edges[0][:-1])
+    k = int(np.nonzero(env >= thr)[0][-1])
+    if k + 1 >= prof.size:
+        return float(edges[0][-1])
+    # linear between the last column at or above the threshold and the next (below it)
+    a, b = env[k], env[k + 1]
+    return float(centres[k] + h * (a - thr) / (a - b))

@@ -1,10 +1,24 @@
 """Observables computed from particle data (pure JAX: safe under ``jit``, ``vmap`` and ``grad``).
 
-``runout``: front position along ``axis`` measured from ``origin`` [m]:
+Runout (docs/output.md "Runout"): two definitions, both measured along the runout axis from
+the runout origin [m].
+
+``free_surface_front`` (the headline ``runout_m`` of summary.json, and calibration's front):
+    the farthest position where the deposit thickness is at least ``FRONT_FRACTION`` (10 %)
+    of the thickest point of the same frame.  The thickness is the kernel height profile of
+    the particles' rest volumes (``height_profile``, Gaussian bandwidth one cell h) in 2D; in
+    3D (``mpmjax._metrics.plan_front``) the largest thickness across the flow in each
+    plan-view column of one cell.  It is a functional of the free surface, so it converges
+    with h and ppc; a single particle carries a height of at most V_p / (sqrt(2 pi) h), far
+    below 10 % of any deposit a few particle layers thick.  Why 10 %: the convention of the
+    lobe width (``_metrics``) and of calibration's runout data; for the Bingham slump's
+    sqrt profile it stops short of the tip by 1 % of the deposit length (the last 10 % of
+    the thickness spans 1 % of the length), below the discretisation error at affordable h.
+``runout`` (secondary: ``runout_farthest_particle_m``):
     x_front = max over active particles of x_p[axis] + s/2 - origin,
-where s is the initial particle spacing (h / ppc), so that a block at rest reports its
-own edge.  It is a hard maximum, so a single stray particle moves it; the smooth,
-differentiable estimates below are what calibration fits.
+    where s is the initial particle spacing (h / ppc), so that a block at rest reports its
+    own edge.  It is a hard maximum, so a single stray particle moves it and it does not
+    converge with h (docs/validation.md).
 
 Differentiable observables: height profile, smooth front, deposited volume.
 
@@ -40,7 +54,19 @@ import math
 import jax
 import jax.numpy as jnp
 
-__all__ = ["runout", "gaussian_kernel", "height_profile", "smooth_front", "deposited_volume", "particle_volume"]
+__all__ = [
+    "FRONT_FRACTION",
+    "runout",
+    "free_surface_front",
+    "front_threshold",
+    "gaussian_kernel",
+    "height_profile",
+    "smooth_front",
+    "deposited_volume",
+    "particle_volume",
+]
+
+FRONT_FRACTION = 0.1  # headline front: thickness >= 10 % of the frame's thickest point (docstring)
 
 
 def runout(x, active, axis: int, origin: float, spacing: float):
@@ -160,13 +186,65 @@ def smooth_front(
     dim = x.shape[-1]
     if dim != 2:
         raise ValueError(f"smooth_front is defined for 2D (plane strain) data; got dim = {dim}")
-    s = threshold_height / 10.0 if softness is None else softness
     grid = jnp.linspace(x_lo, x_hi, n_grid, dtype=x.dtype)
     h = height_profile(x, vol, active, grid, bandwidth=bandwidth, dim=2, vertical_axis=vertical_axis, J=J)
+    return _front_of_profile(h, threshold_height, softness, x_lo, x_hi)
+
+
+def _front_of_profile(h, threshold_height, softness, x_lo, x_hi):
+    """x_lo + integral of sigmoid((H - h_c)/s) over [x_lo, x_hi], with H the envelope of ``h``
+    (on equally spaced stations) from the right, linear between stations (``smooth_front``).
+
+    The integral over each station interval is exact for the linear H:
+    s/(H1 - H0) (softplus((H1 - h_c)/s) - softplus((H0 - h_c)/s)), or the midpoint value
+    where H1 - H0 is below s/100 (the two agree there to ~1e-5).  So a front whose step is
+    sharper than the station spacing (a vertical edge) still lands where the linear
+    envelope crosses h_c, not on a station.
+    """
+    s = threshold_height / 10.0 if softness is None else softness
     env = jax.lax.cummax(h, axis=0, reverse=True)
-    ind = jax.nn.sigmoid((env - threshold_height) / s)
-    dx = (x_hi - x_lo) / (n_grid - 1)
-    return x_lo + dx * (jnp.sum(ind) - 0.5 * (ind[0] + ind[-1]))
+    z0, z1 = (env[:-1] - threshold_height) / s, (env[1:] - threshold_height) / s
+    dz = z1 - z0
+    flat = jnp.abs(dz) < 1e-2
+    dz_safe = jnp.where(flat, 1.0, dz)  # double where: no 0/0 in the value or the gradient
+    exact = (jax.nn.softplus(z1) - jax.nn.softplus(z0)) / dz_safe
+    seg = jnp.where(flat, jax.nn.sigmoid(0.5 * (z0 + z1)), exact)
+    dx = (x_hi - x_lo) / (h.shape[0] - 1)
+    return x_lo + dx * jnp.sum(seg)
+
+
+def front_threshold(h, fraction=FRONT_FRACTION):
+    """Threshold height [m] of the free-surface front: ``fraction`` of the largest height of
+    the profile ``h`` (the thickest point of the frame)."""
+    return fraction * jnp.max(h)
+
+
+def free_surface_front(x, vol, active, *, bandwidth, x_lo, x_hi, fraction=FRONT_FRACTION, n_grid=None, J=None):
+    """Free-surface front [m] of a 2D (plane strain) frame: ``smooth_front`` of the height
+    profile with the threshold ``front_threshold`` (``fraction`` of the profile's largest
+    height) and the default softness (a tenth of the threshold).
+
+    ``bandwidth``: kernel bandwidth [m] (the headline runout uses one cell h); ``x_lo`` /
+    ``x_hi``: the stretch searched (the domain along x) [m]; ``n_grid``: stations (default 3
+    per bandwidth, at least 50).  Pure JAX and differentiable (the threshold moves with the
+    largest height; its gradient is that of the maximum).  With no active particle it
+    returns ``x_lo``.  Returns a position [m] (not yet minus a runout origin).
+    """
+    dim = x.shape[-1]
+    if dim != 2:
+        raise ValueError(f"free_surface_front is defined for 2D (plane strain) data; got dim = {dim}")
+    if n_grid is None:
+        n_grid = front_stations(x_lo, x_hi, bandwidth)
+    grid = jnp.linspace(x_lo, x_hi, n_grid, dtype=x.dtype)
+    h = height_profile(x, vol, active, grid, bandwidth=bandwidth, dim=2, J=J)
+    # an empty frame has h = 0: a positive floor keeps the sigmoid finite (the front is x_lo)
+    h_c = jnp.maximum(front_threshold(h, fraction), 1e-30)
+    return _front_of_profile(h, h_c, None, x_lo, x_hi)
+
+
+def front_stations(x_lo, x_hi, bandwidth) -> int:
+    """Default number of stations of ``free_surface_front``: 3 per bandwidth, at least 50."""
+    return max(50, int(math.ceil(3 * (x_hi - x_lo) / bandwidth)) + 1)
 
 
 def deposited_volume(x, vol, active, region_lo, region_hi, *, softness, J=None):

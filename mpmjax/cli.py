@@ -1,4 +1,4 @@
-"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | study |
+"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | study |
 calibrate | sweep``: argument parsing and dispatch only; the work is done by the library
 (``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
 ``calibration``.
@@ -23,7 +23,7 @@ from . import rheometer
 from ._schema import SCHEMA, SceneError, builtin_scenes
 from ._driver import ANIMATION_MAX_FRAMES, CHECKPOINT_EVERY, FAILED, Interrupted, fail, run_scene
 from ._health import RunFailure
-from .studies import bench, pareto, records, stress
+from .studies import bench, converge, pareto, records, stress
 from .studies.tables import run_study
 
 
@@ -153,6 +153,11 @@ def main(argv=None) -> int:
     ppa = sub.add_parser("pareto", help="error against run time of the lab dam break numerics (Pareto front)")
     pareto.add_arguments(ppa)
     ppa.set_defaults(fn=pareto.cmd_pareto)
+    pcv = sub.add_parser(
+        "converge", help="convergence benchmark: runout against h, ppc, shape and anti-locking, with order and CPU time"
+    )
+    converge.add_arguments(pcv)
+    pcv.set_defaults(fn=converge.cmd_converge)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")

@@ -37,7 +37,6 @@ import numpy as np
 from . import _metrics
 from ._io import read_result
 from ._observables import height_profile
-from ._observables import runout as _runout
 
 __all__ = [
     "FIELDS",
@@ -355,16 +354,28 @@ def profiles(result, times=None, data=None, ax=None, *, method: str = "surface",
     return ax
 
 
-def runout(result) -> tuple[np.ndarray, np.ndarray]:
-    """(times [s], front position [m]) of every saved frame: ``mpmjax.runout`` with the run's
-    axis, origin and particle spacing (0 where no material is active yet, as in summary.json)."""
-    res = load(result)
+def _gauge(res) -> _metrics.RunoutGauge:
     g = _geometry(res)
+    return _metrics.RunoutGauge(
+        dim=g["dim"], axis=g["axis"], origin=g["origin"], cell=g["h"], spacing=g["spacing"], lo=tuple(g["lo"]),
+        hi=tuple(g["hi"]),
+    )
+
+
+def runout(result, *, farthest: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(times [s], runout [m]) of every saved frame, as summary.json defines it (docs/output.md
+    "Runout"): the free-surface front, or with ``farthest`` the farthest particle (0 where no
+    material is active yet)."""
+    res = load(result)
+    gauge = _gauge(res)
     fr = res["frames"]
     act = fr["active"].astype(bool)
-    front = np.asarray(_runout(fr["x_m"], act, g["axis"], g["origin"], g["spacing"]), float)
-    front = np.where(act.any(axis=-1), front, 0.0)
-    return np.asarray(fr["t_s"], float), front
+    vol0 = np.asarray(res["particles"]["vol0_m3"], np.float32)
+    if farthest:
+        front = [gauge.farthest(x, a) for x, a in zip(fr["x_m"], act)]
+    else:
+        front = [gauge.front(x, vol0, a) for x, a in zip(fr["x_m"], act)]
+    return np.asarray(fr["t_s"], float), np.asarray(front, float)
 
 
 def runout_vs_time(result, ax=None, **plot_kw):
@@ -691,7 +702,15 @@ def plot_result(path_png, frames: dict, summary: dict, title: str, snapshot_time
         fig.colorbar(sc, ax=ax, label="μ [Pa·s]")
     axes[len(picks) - 1].set_xlabel("x [m]")
     axr = axes[-1]
-    axr.plot(summary["times_s"], summary["runout_m"], "-o", ms=3)
+    axr.plot(summary["times_s"], summary["runout_m"], "-o", ms=3, label="free-surface front (headline)")
+    if "runout_farthest_particle_m" in summary:
+        axr.plot(summary["times_s"], summary["runout_farthest_particle_m"], "--", lw=1, label="farthest particle")
+    wall = summary.get("runout_wall_m")
+    if wall is not None:
+        axr.axhline(wall, color="k", lw=1, ls=":", label="domain wall")
+    capped = " (capped by the domain wall)" if summary.get("runout_capped_by_wall") else ""
+    axr.set_title(f"final runout {summary['final_runout_m']:.3f} m{capped}", fontsize=9)
+    axr.legend(fontsize=7, loc="lower right")
     axr.set_xlabel("time [s]")
     axr.set_ylabel("runout [m]")
     axr.grid(True, alpha=0.3)

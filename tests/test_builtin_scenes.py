@@ -151,7 +151,12 @@ def test_builtin_scene_coarse_run_is_physical(name, tmp_path):
         x0 = cfg["bodies"][0]["hi_m"][0]
         ritter = x0 + 2.0 * t * math.sqrt(g * h0)
         assert ritter[-1] < cfg["domain.hi_m"][0]
-        assert np.all(r <= ritter + h), (r, ritter)
+        # Ritter bounds the tip: the farthest particle; the headline front (thickness >= 10 % of
+        # the thickest point) lies behind the tip, but reads a vertical edge 1.28 h beyond it
+        # (docs/output.md "Runout"), so at t = 0 it may sit up to 1.28 h past x0
+        tip = np.asarray(s["runout_farthest_particle_m"])
+        assert np.all(tip <= ritter + h), (tip, ritter)
+        assert np.all(r <= ritter + 1.3 * h), (r, ritter)
         # and it is a fast, inertial flow: measured 0.46 of the Ritter advance at 0.12 s (h = 0.01 m;
         # a real front lags Ritter's, which is hydrostatic from t = 0); the viscous and yield-stress
         # scenes reach 0.1-0.4 of theirs. Require 0.3: a collapse slowed by spurious friction fails.

@@ -95,8 +95,12 @@ def test_runout_vs_time_matches_summary(run):
     t, front = ax.lines[0].get_data()
     np.testing.assert_allclose(t, summary["times_s"], rtol=1e-6)
     np.testing.assert_allclose(front, summary["runout_m"], rtol=1e-6)
-    # the 0.2 m block starts with its edge at 0.2 m and only advances
-    assert front[0] == pytest.approx(0.2, abs=1e-6) and np.all(np.diff(front) > 0)
+    # the 0.2 m block's edge reads 1.28 kernel bandwidths (one 0.02 m cell) beyond 0.2 m
+    # (tests/test_runout_front.py) and the front only advances
+    assert front[0] == pytest.approx(0.2 + 1.2816 * 0.02, abs=0.002) and np.all(np.diff(front) > 0)
+    _, far = plotting.runout(res, farthest=True)
+    np.testing.assert_allclose(far, summary["runout_farthest_particle_m"], rtol=1e-6)
+    assert far[0] == pytest.approx(0.2, abs=1e-6)
     assert ax.get_xlabel() == "time t [s]" and ax.get_ylabel() == "runout [m]"
 
 
@@ -201,9 +205,15 @@ def test_3d_views_and_runout():
     # the bottom layer moved by |(0.25, 0, -0.01)| m, the top layer not at all
     d = np.sort(np.asarray(plan.collections[0].get_array()))
     np.testing.assert_allclose(d, [0, 0, 0, 0] + [np.hypot(0.25, 0.01)] * 4, atol=1e-6)
-    # runout from the back of the body (x = 0.1 m): the last particle at 0.25 (+0.25) plus half of 0.1 m
+    # farthest-particle runout from the back of the body (x = 0.1 m): the last particle at 0.25
+    # (+0.25) plus half of 0.1 m
+    t, far = plotting.runout(res, farthest=True)
+    np.testing.assert_allclose(far, [0.25 + 0.05 - 0.1, 0.5 + 0.05 - 0.1], atol=1e-6)
+    # free-surface front on 0.2 m plan bins: frame 0 thicknesses 0.1, 0.1, 0 ... m, the threshold
+    # 10 % of 0.1 m is crossed 0.9 of a bin past the last full bin's centre (0.3 m): 0.48 m; frame 1
+    # (bottom layer in the bin at 0.4-0.6 m): 0.05, 0.05, 0.1, 0 ... m: 0.5 + 0.18 = 0.68 m
     t, front = plotting.runout(res)
-    np.testing.assert_allclose(front, [0.25 + 0.05 - 0.1, 0.5 + 0.05 - 0.1], atol=1e-6)
+    np.testing.assert_allclose(front, [0.48 - 0.1, 0.68 - 0.1], atol=1e-6)
     with pytest.raises(ValueError, match="for 2D results; this one is 3D"):
         plotting.profiles(res, method="kernel")
     with pytest.raises(ValueError, match="allowed: 'side', 'plan'"):

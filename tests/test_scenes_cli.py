@@ -127,9 +127,14 @@ def test_cli_run_writes_results(tmp_path):
     assert summ["mass_final_kg"] == summ["mass_initial_kg"]
     assert len(summ["times_s"]) == len(summ["runout_m"]) == 6
     assert summ["times_s"][-1] == pytest.approx(0.5, rel=1e-9)
-    # the block starts at its own width and the front only advances in a collapse
-    assert summ["runout_m"][0] == pytest.approx(0.2, abs=1e-6)
+    # the block starts at its own width (farthest particle) and the front only advances in a
+    # collapse; the headline free-surface front reads the block's vertical edge 1.28 kernel
+    # bandwidths (one cell, 0.02 m) beyond it (tests/test_runout_front.py), within 10 % of b
+    assert summ["runout_farthest_particle_m"][0] == pytest.approx(0.2, abs=1e-6)
+    assert summ["runout_m"][0] == pytest.approx(0.2 + 1.2816 * 0.02, abs=0.002)
     assert np.all(np.diff(summ["runout_m"]) >= -1e-3)
+    assert np.all(np.diff(summ["runout_farthest_particle_m"]) >= -1e-3)
+    assert summ["runout_capped_by_wall"] is False
     with h5py.File(out / "result.h5") as f:
         assert f.attrs["complete"]
         assert f["frames/x_m"].shape == (6, summ["n_particles"], 2)
