@@ -85,6 +85,17 @@ class ProfileExperiment:
         if sc.dim != 2:
             raise ValueError(f"{name}: profile calibration is implemented for 2D scenes; got dim = {sc.dim}")
         self.profiles = list(profiles)
+        lo, hi = sc.lo[0], sc.hi[0]
+        for p in self.profiles:
+            x = np.asarray(p.x_m, float)
+            out = np.flatnonzero((x < lo) | (x > hi))
+            if out.size:
+                when = "final profile" if p.t_s is None else f"profile at t_s = {float(p.t_s):g} s"
+                raise ValueError(
+                    f"{name}: x_m = {float(x[out[0]]):g} (station {int(out[0]) + 1} of the {when}; "
+                    f"{out.size} station(s) outside) lies outside the scene's domain: allowed range: "
+                    f"{lo:g} .. {hi:g} m (domain.lo_m[0] .. domain.hi_m[0]); check the data's x origin and units"
+                )
         frame_dt = sc.steps_per_frame * sc.dt
         self.frame_dt = frame_dt
         t_end = sc.n_frames * frame_dt

@@ -4,8 +4,9 @@ initial state, derived facts).
 * ``make_params``: the material parameters (read through the law's ``Param``
   declarations) and the gravity vector;
 * ``make_rheology``: the law instance with its static options;
-* ``seed_bodies``: regular particle seeding of the material blocks;
+* ``seed_bodies``: regular particle seeding of the material blocks (their union);
 * ``time_step_limits``: the wave-speed and viscous limits of the fixed time step;
+* ``memory_estimate``: the memory a run will need, from the validated scene alone;
 * ``build``: grid, walls, gate, terrain and pipe-inflow pool, the time step and the scan
   lengths, and the initial state.
 
@@ -23,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _rheology
+from . import _rheology, _shapes
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -57,23 +58,32 @@ def make_rheology(cfg: dict):
 
 def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Regular particle seeding: ``ppc`` per axis per cell.  Returns x (n, dim) [m],
-    vol0 (n,) [m^dim] and v (n, dim) [m/s]."""
+    vol0 (n,) [m^dim] and v (n, dim) [m/s].
+
+    Each body is filled on its own lattice, every particle holding the body's volume / its
+    particle count.  Overlapping bodies are seeded as their union: a particle of a later body
+    that lies inside (or on the surface of) an earlier body is dropped, so overlapping material
+    is not seeded twice (two boxes overlapping by half used to hold 4/3 of their union's mass);
+    where bodies overlap, the earlier body's particles (and velocity) are kept."""
     dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
     dx = h / ppc
-    xs, vs = [np.zeros((0, dim))], [np.zeros((0, dim))]
+    xs, vols, vs = [np.zeros((0, dim))], [np.zeros(0)], [np.zeros((0, dim))]
+    earlier: list[tuple[np.ndarray, np.ndarray]] = []
     for b in cfg["bodies"]:
-        lo, hi = np.asarray(b["lo_m"]), np.asarray(b["hi_m"])
+        lo, hi = np.asarray(b["lo_m"], float), np.asarray(b["hi_m"], float)
         counts = np.maximum(np.round((hi - lo) / dx).astype(int), 1)
         axes = [lo[d] + (np.arange(counts[d]) + 0.5) * (hi[d] - lo[d]) / counts[d] for d in range(dim)]
         mesh = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
+        vol = np.prod(hi - lo) / len(mesh)  # each body's particles fill it exactly
+        keep = np.ones(len(mesh), bool)
+        for elo, ehi in earlier:
+            keep &= ~np.all((mesh >= elo) & (mesh <= ehi), axis=1)
+        earlier.append((lo, hi))
+        mesh = mesh[keep]
         xs.append(mesh)
+        vols.append(np.full(len(mesh), vol))
         vs.append(np.broadcast_to(np.asarray(b.get("velocity_m_s", [0.0] * dim), float), mesh.shape))
-    x = np.concatenate(xs)
-    # each body's particles fill it exactly: volume = body volume / count
-    vols = [np.zeros(0)]
-    for b, xb in zip(cfg["bodies"], xs[1:]):
-        vols.append(np.full(len(xb), np.prod(np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / len(xb)))
-    return x, np.concatenate(vols), np.concatenate(vs)
+    return np.concatenate(xs), np.concatenate(vols), np.concatenate(vs)
 
 
 @dataclasses.dataclass
@@ -184,6 +194,63 @@ def _dt_inputs(cfg: dict, lim: dict) -> str:
     return text
 
 
+def _grid_shape(cfg: dict) -> tuple[int, ...]:
+    """Grid nodes per axis: the cells of the domain plus the ghost layers outside each
+    non-periodic face (periodic axes wrap: one node per cell)."""
+    dim, h = cfg["domain.dim"], cfg["domain.cell_size_m"]
+    lo, hi = np.asarray(cfg["domain.lo_m"]), np.asarray(cfg["domain.hi_m"])
+    ng = ghost_cells(cfg["numerics.shape"])
+    ncell = np.round((hi - lo) / h).astype(int)
+    periodic = [cfg[f"boundary.{'xyz'[a]}_lo"] == "periodic" for a in range(dim)]
+    return tuple(int(ncell[a] if periodic[a] else ncell[a] + 2 * ng + 1) for a in range(dim))
+
+
+def memory_estimate(cfg: dict) -> dict:
+    """Memory [bytes] a run of a validated scene needs, estimated before anything is built
+    (so that a run that cannot fit is refused in a second instead of failing after compiling).
+
+    Deliberately generous (it may overestimate 2-3x, never by orders of magnitude):
+
+    * ``device_bytes``, where the step runs: 4 copies of the particle state (the state in and
+      out of a frame, the last good frame kept for the health check, XLA buffers), the
+      per-particle stencil temporaries of the transfers (for each of the stencil^dim nodes: weight,
+      gradient, node index and the scattered mass and momentum, twice), and 4 copies of the
+      grid fields (mass, momentum, velocity, old velocity, force);
+    * ``host_bytes``: the saved frames that ``run_scene`` reads back at the end for the
+      summary metrics and pictures ((n_frames + 1) x particles x the stored float32 fields),
+      plus, on the CPU backend, ``device_bytes``.
+
+    Particles: the sum of the bodies' lattice counts (an upper bound: overlaps are seeded once)
+    plus a pipe inflow's pool."""
+    dim = cfg["domain.dim"]
+    item = 8 if cfg["numerics.dtype"] == "float64" else 4
+    dx = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
+    n = 0.0
+    for b in cfg["bodies"]:
+        counts = np.maximum(np.round((np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / dx), 1.0)
+        n += float(np.prod(counts))
+    if cfg["inflow.point_m"] is not None:
+        n += float(inflow_layout(cfg, dim)[2])
+    nodes = float(np.prod(np.asarray(_grid_shape(cfg), float)))
+    n_internal = len(_rheology.MODELS[cfg["material.model"]].internals)
+    state_per_particle = (2 * dim + 2 * dim * dim + 3 + n_internal) * item + 2  # x v C tau J vol0 mu internal; bools
+    stencil = _shapes.STENCIL[cfg["numerics.shape"]] ** dim
+    step_per_particle = 2 * stencil * (2 * dim + 3) * item
+    particles = n * (4 * state_per_particle + step_per_particle)
+    grid = 4 * nodes * (3 * dim + 2) * item
+    frames = (cfg["time.n_frames"] + 1) * n * ((2 * dim + 3 + n_internal) * 4 + 1)
+    return {
+        "particles": n,
+        "grid_nodes": nodes,
+        "particle_bytes": particles,
+        "grid_bytes": grid,
+        "frames_bytes": frames,
+        "device_bytes": particles + grid,
+        "host_bytes": frames,
+        "dtype": cfg["numerics.dtype"],
+    }
+
+
 def build(cfg: dict) -> Setup:
     """Validated scene dict -> ``Setup`` (scene, params, initial state, info).
 
@@ -256,9 +323,8 @@ def build(cfg: dict) -> Setup:
     faces = [(cfg[f"boundary.{'xyz'[a]}_lo"], cfg[f"boundary.{'xyz'[a]}_hi"]) for a in range(dim)]
     periodic = tuple(f[0] == "periodic" for f in faces)
     ng = ghost_cells(cfg["numerics.shape"])
-    ncell = np.round((hi - lo) / h).astype(int)
     origin = tuple(float(lo[a] - (0 if periodic[a] else ng * h)) for a in range(dim))
-    shape = tuple(int(ncell[a] if periodic[a] else ncell[a] + 2 * ng + 1) for a in range(dim))
+    shape = _grid_shape(cfg)
     walls = []
     for a in range(dim):
         for side, kind in zip((0, 1), faces[a]):

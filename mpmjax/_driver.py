@@ -4,8 +4,10 @@ cache, progress on stderr, the summary.json metrics and the animation.
 
 Also the exit statuses shared by the command layers (``mpmjax.cli`` and the ``cmd_*`` functions of
 ``mpmjax.studies``): 0 success, 1 other errors, 2 invalid input (``USAGE_ERROR``, printed by
-``fail``), 3 a run stopped by a failed health check (``FAILED``), 128 + the signal number for an
-interrupted run (130 Ctrl-C, 143 SIGTERM).
+``fail``; also an output folder that cannot be used and a run refused by the memory estimate),
+3 a run stopped by a failed health check (``FAILED``), 4 a run stopped because its output could
+not be written (``OUTPUT_FAILED``: the folder became unwritable, the disk is full), 128 + the
+signal number for an interrupted run (130 Ctrl-C, 143 SIGTERM).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _health, _metrics, plotting
-from ._build import build
+from ._build import build, memory_estimate
 from ._schema import SceneError, load_scene
 from ._io import FrameWriter, _jsonable, atomic_write_text, config_hash, read_checkpoint, read_result
 from ._io import write_checkpoint as _write_ckpt
@@ -37,10 +39,16 @@ from ._xdmf import write_xdmf
 
 USAGE_ERROR = 2  # exit status of invalid input (the message names the key, the value and the allowed range)
 FAILED = 3  # exit status of a run stopped by a failed health check (mpmjax._health)
+OUTPUT_FAILED = 4  # exit status of a run stopped because writing its output failed (OutputFailure)
 
 
 class Progress:
-    """A one-line progress report with elapsed time and an estimate of the time left."""
+    """A one-line progress report with elapsed time and an estimate of the time left.
+
+    The clock starts at construction and again at ``update(0)``: a caller that compiles after
+    creating the bar calls ``update(0)`` once compiled, so that neither the elapsed time nor the
+    estimate (elapsed / done x left) counts the compilation (it used to: the first "left" of a
+    stress case was 40x too high)."""
 
     def __init__(self, total: int, label: str, stream=sys.stderr):
         self.total, self.label, self.stream = total, label, stream
@@ -49,6 +57,8 @@ class Progress:
         self.last_pct = -1
 
     def update(self, done: int, extra: str = ""):
+        if done == 0:
+            self.t0 = time.perf_counter()
         el = time.perf_counter() - self.t0
         eta = el / done * (self.total - done) if done else float("nan")
         pct = int(100 * done / self.total)
@@ -233,6 +243,131 @@ class OutputLock:
             self.fd = None
 
 
+class OutputError(SceneError):
+    """``--out`` cannot hold a run's files: an existing file, a folder that cannot be created,
+    or one without write permission (exit status 2; found before anything is built)."""
+
+
+class OutputFailure(Exception):
+    """Writing the output failed during or after the run (the folder became unwritable, the
+    disk filled up): exit status ``OUTPUT_FAILED``.  The message says what was kept."""
+
+
+class MemoryRefused(SceneError):
+    """The memory estimate of a run exceeds the memory available (exit status 2)."""
+
+
+MEMORY_ENV = "MPMJAX_MEMORY_LIMIT_GB"  # overrides the memory available to a run ("inf": no check)
+
+
+def check_output_folder(out: Path) -> None:
+    """Raise ``OutputError`` unless ``out`` is, or can be created as, a folder we can write to.
+    Creates nothing (a probe file is created and removed in the nearest existing folder)."""
+    out = Path(out)
+    try:
+        if out.exists() and not out.is_dir():
+            raise OutputError(f"--out {out} is an existing file; allowed: a folder (existing, or one to create)")
+        base = out
+        while not base.exists() and base != base.parent:
+            base = base.parent
+        if not base.is_dir():
+            raise OutputError(f"--out {out} cannot be created: {base} is a file, not a folder")
+    except OSError as e:  # e.g. a parent without search permission
+        raise OutputError(f"--out {out} cannot be used: {e.strerror or e}") from None
+    probe = base / f".mpmjax-write-test-{os.getpid()}"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+        os.unlink(probe)
+    except OSError as e:
+        what = "is not writable" if base == out else f"cannot be created in {base}"
+        raise OutputError(f"--out {out} {what}: cannot create a file there ({e.strerror or e})") from None
+
+
+def _available_memory() -> dict:
+    """Bytes available to a run: ``{"device": .., "host": .., "source": ..}``.  Host: the
+    smaller of MemAvailable (/proc/meminfo) and the cgroup's memory.max - memory.current; the
+    device (GPU) from its allocator's statistics; ``$MPMJAX_MEMORY_LIMIT_GB`` overrides both."""
+    env = os.environ.get(MEMORY_ENV)
+    if env:
+        try:
+            gb = float(env)
+        except ValueError:
+            raise SceneError(f"{MEMORY_ENV} = {env!r} is invalid: allowed: a number of GB > 0, or inf") from None
+        if not gb > 0:
+            raise SceneError(f"{MEMORY_ENV} = {env!r} is invalid: allowed: a number of GB > 0, or inf")
+        return {"device": gb * 1e9, "host": gb * 1e9, "source": f"{MEMORY_ENV} = {env}"}
+    host, source = float("inf"), "unknown"
+    with contextlib.suppress(OSError, ValueError, IndexError):
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                host, source = float(line.split()[1]) * 1024, "MemAvailable"
+    with contextlib.suppress(OSError, ValueError):
+        cg = Path("/sys/fs/cgroup")
+        lim = (cg / "memory.max").read_text().strip()
+        if lim != "max":
+            free = float(lim) - float((cg / "memory.current").read_text())
+            if free < host:
+                host, source = free, "the cgroup's memory.max"
+    device, dsource = host, source
+    if jax.default_backend() != "cpu":
+        with contextlib.suppress(Exception):
+            st = jax.devices()[0].memory_stats() or {}
+            if "bytes_limit" in st:
+                device = float(st["bytes_limit"] - st.get("bytes_in_use", 0))
+                dsource = f"{jax.devices()[0].device_kind} memory"
+    return {"device": device, "host": host, "source": source, "device_source": dsource}
+
+
+def check_memory(cfg: dict) -> dict:
+    """Refuse (``MemoryRefused``) a run whose ``_build.memory_estimate`` exceeds the memory
+    available; returns the estimate."""
+    est = memory_estimate(cfg)
+    avail = _available_memory()
+    cpu = jax.default_backend() == "cpu"
+    need = {"host": est["host_bytes"] + (est["device_bytes"] if cpu else 0.0)}
+    if not cpu:
+        need["device"] = est["device_bytes"]
+    for where, b in need.items():
+        if b > avail[where]:
+            src = avail.get("device_source", avail["source"]) if where == "device" else avail["source"]
+            raise MemoryRefused(
+                f"the run needs about {_gb(b)} of {'GPU ' if where == 'device' else ''}memory "
+                f"({est['particles']:.4g} particles: {_gb(est['particle_bytes'])}; grid of {est['grid_nodes']:.4g} "
+                f"nodes: {_gb(est['grid_bytes'])}; {cfg['time.n_frames'] + 1} frames read back at the end: "
+                f"{_gb(est['frames_bytes'])}; {est['dtype']}) but {_gb(avail[where])} is available ({src}); "
+                "allowed: a run that fits: raise domain.cell_size_m, lower numerics.ppc or time.n_frames, or set "
+                f"{MEMORY_ENV} to the memory the run may use (inf: no check)"
+            )
+    return est
+
+
+def _gb(b: float) -> str:
+    return f"{b / 1e9:.3g} GB" if b >= 1e8 else f"{b / 1e6:.3g} MB"
+
+
+def _write_summary(path: Path, doc: dict) -> bool:
+    """Write summary.json; if the folder no longer takes new files (the atomic write needs a
+    temporary file), rewrite the existing summary.json in place.  Returns whether it worked."""
+    text = json.dumps(_jsonable(doc), indent=2)
+    try:
+        atomic_write_text(path, text)
+        return True
+    except OSError:
+        pass
+    try:
+        with open(path, "r+") as f:
+            f.write(text)
+            f.truncate()
+        return True
+    except OSError:
+        return False
+
+
+def _os_reason(e: OSError) -> str:
+    where = f" ({e.filename})" if getattr(e, "filename", None) else ""
+    return f"{e.strerror or e}{where}"
+
+
 def run_scene(
     scene: str | None,
     out: Path,
@@ -296,6 +431,7 @@ def _run_scene(
     out = Path(out)
     ckpt_path = out / "checkpoint.h5"
     ckpt = None
+    check_output_folder(out)  # an existing file, an uncreatable or unwritable folder: exit 2, before building
     if resume:
         if out.is_dir():
             lock.acquire()  # before the checkpoint is read: no other run may change it meanwhile
@@ -329,90 +465,108 @@ def _run_scene(
             f"differing keys: {shown or 'none found (the scene file changed)'}. Resume with the original scene "
             f"and overrides (or none: `{resume_command(out)}`)"
         )
+    check_memory(cfg)  # before anything is built: a run that cannot fit is refused (exit 2)
     setup = build(cfg)
     sc, info = setup.scene, setup.info
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"--out {out} cannot be created: {_os_reason(e)}") from None
     lock.acquire()  # before anything in the folder is created or truncated
     log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
-    log(
-        f"scene {cfg['name']}: {sc.dim}D, {sc.n_particles} particles, grid {sc.grid_shape}, h = {sc.h} m, "
-        f"dt = {sc.dt:.3g} s (wave limit {info['dt_wave_s']:.3g} s, viscous limit {info['dt_viscous_s']:.3g} s, "
-        f"{sc.viscous_update} viscous update), {sc.n_steps} steps to t = {sc.t_end:g} s"
-    )
-    t0 = time.perf_counter()
-    # a pipe inflow's parked pool is stepped only once released: each frame steps the buffer prefix
-    # that holds every particle active by its end (a few sizes, compiled here; _simulate.StagedAdvance)
-    advance = StagedAdvance(sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n))
-    first_frame = int(ckpt[1]) if ckpt is not None else 0
-    sizes = advance.sizes(first_frame)
-    for n in sizes:
-        advance.program(n)
-    compile_s = time.perf_counter() - t0
-    staged_note = (
-        f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
-        if sizes != [sc.n_particles]
-        else ""
-    )
-    log(f"compiled in {compile_s:.1f} s{staged_note}")
-    rho = float(setup.params.material.rho)
-    gauge = _metrics.RunoutGauge.of(sc, info)
-
-    def front(st):
-        # no active material yet (a pipe inflow before its start): both fronts are at the origin
-        return gauge.front(st.x, st.vol0, st.active)
-
-    def farthest(st):
-        return gauge.farthest(st.x, st.active)
-
-    def energy(st):
-        return float(_metrics.kinetic_energy(np.asarray(st.v), np.asarray(st.vol0), np.asarray(st.active), rho))
-
-    if ckpt is None:
-        state = setup.state
-        done = 0
-        acc = dict(
-            times=[0.0],
-            fronts=[front(state)],
-            farthest=[farthest(state)],
-            kinetic=[energy(state)],
-            lost_reported=0,
-            n_outflow=0,
-            wall_s=0.0,
-            mass0=float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho,
+    sig = _Signals()  # from here Ctrl-C / SIGTERM raise Interrupted (while compiling: once the compiler returns)
+    try:
+        log(
+            f"scene {cfg['name']}: {sc.dim}D, {sc.n_particles} particles, grid {sc.grid_shape}, h = {sc.h} m, "
+            f"dt = {sc.dt:.3g} s (wave limit {info['dt_wave_s']:.3g} s, viscous limit {info['dt_viscous_s']:.3g} s, "
+            f"{sc.viscous_update} viscous update), {sc.n_steps} steps to t = {sc.t_end:g} s"
         )
-        ckpt_path.unlink(missing_ok=True)  # a stale checkpoint of an earlier run here
-    else:
-        st_np, done, _, meta = ckpt
-        state = jax.tree_util.tree_map(jnp.asarray, st_np)
-        acc = meta["acc"]
-        if "farthest" not in acc:
-            raise SceneError(
-                f"--resume {out}: the checkpoint was written by mpmjax {meta.get('code_version', '?')}, before the "
-                "free-surface runout (docs/output.md 'Runout'); its runout series cannot be continued: rerun without "
-                "--resume"
+        t0 = time.perf_counter()
+        # a pipe inflow's parked pool is stepped only once released: each frame steps the buffer prefix
+        # that holds every particle active by its end (a few sizes, compiled here; _simulate.StagedAdvance)
+        advance = StagedAdvance(
+            sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n)
+        )
+        first_frame = int(ckpt[1]) if ckpt is not None else 0
+        sizes = advance.sizes(first_frame)
+        for n in sizes:
+            advance.program(n)
+        compile_s = time.perf_counter() - t0
+        staged_note = (
+            f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
+            if sizes != [sc.n_particles]
+            else ""
+        )
+        log(f"compiled in {compile_s:.1f} s{staged_note}")
+        rho = float(setup.params.material.rho)
+        gauge = _metrics.RunoutGauge.of(sc, info)
+
+        def front(st):
+            # no active material yet (a pipe inflow before its start): both fronts are at the origin
+            return gauge.front(st.x, st.vol0, st.active)
+
+        def farthest(st):
+            return gauge.farthest(st.x, st.active)
+
+        def energy(st):
+            return float(_metrics.kinetic_energy(np.asarray(st.v), np.asarray(st.vol0), np.asarray(st.active), rho))
+
+        if ckpt is None:
+            state = setup.state
+            done = 0
+            acc = dict(
+                times=[0.0],
+                fronts=[front(state)],
+                farthest=[farthest(state)],
+                kinetic=[energy(state)],
+                lost_reported=0,
+                n_outflow=0,
+                wall_s=0.0,
+                mass0=float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho,
             )
-        log(f"resuming {out} from the checkpoint at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s)")
-    last_ckpt = done if ckpt is not None else -1
-    meta_base = dict(scene_source=source, overrides=overrides, cfg=_jsonable(cfg), code_version=__version__)
+            ckpt_path.unlink(missing_ok=True)  # a stale checkpoint of an earlier run here
+        else:
+            st_np, done, _, meta = ckpt
+            state = jax.tree_util.tree_map(jnp.asarray, st_np)
+            acc = meta["acc"]
+            if "farthest" not in acc:
+                raise SceneError(
+                    f"--resume {out}: the checkpoint was written by mpmjax {meta.get('code_version', '?')}, before "
+                    "the free-surface runout (docs/output.md 'Runout'); its runout series cannot be continued: rerun "
+                    "without --resume"
+                )
+            log(f"resuming {out} from the checkpoint at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s)")
+        last_ckpt = done if ckpt is not None else -1
+        meta_base = dict(scene_source=source, overrides=overrides, cfg=_jsonable(cfg), code_version=__version__)
 
-    def write_checkpoint(st, frame):
-        nonlocal last_ckpt
-        _write_ckpt(ckpt_path, st, frame, chash, dict(meta_base, acc=acc))
-        last_ckpt = frame
+        def write_checkpoint(st, frame):
+            nonlocal last_ckpt
+            _write_ckpt(ckpt_path, st, frame, chash, dict(meta_base, acc=acc))
+            last_ckpt = frame
 
-    base_summary = {
-        "scene": cfg["name"],
-        "scene_source": source,
-        "overrides": overrides,
-        "dim": sc.dim,
-        "n_particles": sc.n_particles,
-        "n_steps": sc.n_steps,
-        "dt_s": sc.dt,
-        "t_end_s": sc.t_end,
-    }
+        base_summary = {
+            "scene": cfg["name"],
+            "scene_source": source,
+            "overrides": overrides,
+            "dim": sc.dim,
+            "n_particles": sc.n_particles,
+            "n_steps": sc.n_steps,
+            "dt_s": sc.dt,
+            "t_end_s": sc.t_end,
+        }
+    except KeyboardInterrupt as e:
+        sig.restore()
+        kept = (
+            f"the checkpoint in {ckpt_path} is unchanged; resume with: {resume_command(out)}"
+            if ckpt is not None
+            else f"no result in {out} was written or changed"
+        )
+        raise Interrupted(getattr(e, "signum", signal.SIGINT), f"interrupted while compiling: {kept}") from None
+    except BaseException:
+        sig.restore()
+        raise
     start = done  # progress and its time estimate count this session's frames
     prog = None if quiet else Progress(sc.n_frames - start, "run" if not start else f"run (from frame {start})")
-    sig = _Signals()
     t_run = time.perf_counter()
     wall0 = acc["wall_s"]
     w = None
@@ -427,6 +581,9 @@ def _run_scene(
                         w = FrameWriter(out / "result.h5", setup, __version__, keep_frames=done + 1)
                     except (OSError, KeyError, ValueError) as e:
                         raise SceneError(f"--resume {out}: {out / 'result.h5'} cannot be continued: {e}") from None
+                # a summary.json from the start, so that a failure after the folder became unwritable can
+                # still rewrite it in place (_write_summary)
+                _write_summary(out / "summary.json", dict(base_summary, status="running", complete=False))
             for i in range(done, sc.n_frames):
                 new = advance(i, state, setup.params)
                 jax.block_until_ready(new.x)
@@ -498,6 +655,46 @@ def _run_scene(
                 ),
             )
             raise
+        except OSError as e:
+            # writing failed (the folder became unwritable, the disk is full): result.h5 is marked failed
+            # where it can still be written, and summary.json gets what was written
+            sig.depth += 1
+            reason = (
+                f"writing the output in {out} failed after frame {done}/{sc.n_frames} "
+                f"(t = {float(state.t):.4g} s): {_os_reason(e)}"
+            )
+            marked = False
+            if w is not None:
+                with contextlib.suppress(Exception):
+                    w.close(False, status="failed", error=reason)
+                    marked = True
+            doc = dict(
+                base_summary,
+                status="failed",
+                error=reason,
+                failure={"kind": "output", "message": reason, "frame": done},
+                frames_written=done if w is not None else 0,
+                times_s=acc["times"],
+                runout_m=acc["fronts"],
+                complete=False,
+            )
+            wrote = _write_summary(out / "summary.json", doc)
+            kept = (
+                f"frames 0..{done} remain readable in {out / 'result.h5'}"
+                + (" (status 'failed')" if marked else " (its status could not be set)")
+                if w is not None
+                else "no frame was written"
+            )
+            resume = (
+                f"; after fixing the folder, resume from the checkpoint at frame {last_ckpt}: {resume_command(out)}"
+                if last_ckpt >= 0 and ckpt_path.is_file()
+                else ""
+            )
+            raise OutputFailure(
+                f"{reason}. {kept}; summary.json "
+                + ("has status 'failed'" if wrote else "could not be written")
+                + resume
+            ) from None
         except BaseException:
             if w is not None:
                 w.close(False, status="interrupted")
@@ -506,11 +703,29 @@ def _run_scene(
             w.close(True, status="complete")
     finally:
         sig.restore()
+    try:
+        return _finish(out, setup, cfg, state, acc, advance, compile_s, base_summary, animate, quiet, log)
+    except OSError as e:
+        reason = f"the run is complete in {out / 'result.h5'}, but writing its other outputs failed: {_os_reason(e)}"
+        wrote = _write_summary(out / "summary.json", dict(base_summary, status="complete", error=reason, complete=True))
+        raise OutputFailure(
+            reason + ("; summary.json has the run facts and this message" if wrote else "; summary.json could not be written")
+        ) from None
+
+
+def _finish(out, setup, cfg, state, acc, advance, compile_s, base_summary, animate, quiet, log) -> dict:
+    """After the last frame: delete the checkpoint, write result.xdmf, summary.json, the pictures
+    (and the 3D plan-view maps); returns the summary."""
+    sc, info = setup.scene, setup.info
+    ckpt_path = out / "checkpoint.h5"
+    rho = float(setup.params.material.rho)
+    gauge = _metrics.RunoutGauge.of(sc, info)
     ckpt_path.unlink(missing_ok=True)  # complete: nothing left to resume
     wall = acc["wall_s"]
     times, fronts, kinetic = acc["times"], acc["fronts"], acc["kinetic"]
     write_xdmf(out / "result.h5")  # result.xdmf: ParaView / VisIt sidecar of the closed result.h5
     mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
+    thick = gauge.max_thickness(state.x, state.vol0, state.active)
     summary = {
         **base_summary,
         "status": "complete",
@@ -539,6 +754,10 @@ def _run_scene(
         "runout_capped_by_wall": bool(
             max(fronts[-1], acc["farthest"][-1]) >= sc.hi[gauge.axis] - gauge.origin - sc.h
         ),
+        # resolution across the deposit (docs/output.md "Runout"; the needed number: docs/validation.md)
+        "deposit_max_thickness_m": thick,
+        "deposit_cells_across": thick / sc.h,
+        "deposit_cells_across_needed": _metrics.DEPOSIT_CELLS_NEEDED,
         "dt_limits": {
             k: info[k]
             for k in (
@@ -577,6 +796,12 @@ def _run_scene(
         log(
             f"lobe width {summary['lobe_width_m']} m (thickness > {summary['lobe_width_threshold_m']:g} m); "
             f"channels: {'yes, from t = ' + format(ch['first_time_s'], 'g') + ' s' if ch['detected'] else 'no'}"
+        )
+    if 0 < summary["deposit_cells_across"] < _metrics.DEPOSIT_CELLS_NEEDED:
+        log(
+            f"warning: the final deposit is {summary['deposit_cells_across']:.1f} cells thick at its thickest point "
+            f"({thick:.3g} m at h = {sc.h:g} m); the convergence benchmark needs >= {_metrics.DEPOSIT_CELLS_NEEDED} "
+            "for a runout within 5 % (docs/validation.md, 'Convergence benchmark'): refine domain.cell_size_m"
         )
     if summary["runout_capped_by_wall"]:
         log(

@@ -578,6 +578,11 @@ def plan_view_summary(result, path=None) -> dict:
 # --- runout -----------------------------------------------------------------------------------
 
 
+# cells across the final deposit's thickest point below which summary.json warns: the Bingham slump
+# of the convergence benchmark (docs/validation.md) reaches its exact front within 5 % from this on
+DEPOSIT_CELLS_NEEDED = 4
+
+
 class RunoutGauge(NamedTuple):
     """How a run's runout is measured: along ``axis`` from ``origin`` [m] (module docstring).
 

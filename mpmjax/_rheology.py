@@ -22,6 +22,8 @@ with a ``NamedTuple`` of parameters that are traced arrays, so that ``jax.grad``
   time-step limit), and ``max_viscosity_params``: the parameters it reads (named in errors);
 * optionally ``steady_internal(params, shear)``: the steady internal state at a constant
   shear rate, for steady flow curves.
+* optionally ``ordered_params``: (lower, upper) parameter pairs the scene must keep in
+  order (Coussot: ``mu0 <= mu_max``); a scene that breaks one is refused, naming both keys.
 
 The MPM step never branches on the law: it calls ``init_internal`` and ``viscosity``
 (update the internal variables where the material ages, then ``mu``), and builds the
@@ -325,6 +327,10 @@ class Law:
     options: ClassVar[tuple[Option, ...]] = ()
     internals: ClassVar[tuple[Internal, ...]] = ()
     max_viscosity_params: ClassVar[tuple[str, ...]] = ()
+    # (lower, upper) parameter pairs that must satisfy lower <= upper (Coussot: mu0 <= mu_max,
+    # a cap below the base viscosity would hold the whole material at the cap); checked by the
+    # scene validation, which names both keys
+    ordered_params: ClassVar[tuple[tuple[str, str], ...]] = ()
 
     @property
     def internal_fields(self) -> tuple[str, ...]:
@@ -467,6 +473,7 @@ class Coussot(Law):
     options: ClassVar[tuple[Option, ...]] = (LAMBDA_INTEGRATOR,)
     internals: ClassVar[tuple[Internal, ...]] = (Internal("lam", "lambda", "-", "structure parameter", "lambda0"),)
     max_viscosity_params: ClassVar[tuple[str, ...]] = ("mu_max",)
+    ordered_params: ClassVar[tuple[tuple[str, str], ...]] = (("mu0", "mu_max"),)
 
     def rate(self, params, shear, internal):
         return {"lam": 1.0 / params.T - params.alpha * shear * internal["lam"]}
@@ -524,6 +531,9 @@ def _check_law(cls) -> None:
         raise TypeError(f"{cls.__name__}: params declare {names} but {cls.params_type.__name__} has fields {fields}")
     if "rho" not in names or "kappa" not in names:
         raise TypeError(f"{cls.__name__}: every law takes rho and kappa (declare RHO and KAPPA)")
+    for pair in cls.ordered_params:
+        if len(pair) != 2 or not set(pair) <= set(names):
+            raise TypeError(f"{cls.__name__}: ordered_params {pair!r} must name two of its parameters {names}")
     for i in cls.internals:
         if i.init not in names:
             raise TypeError(f"{cls.__name__}: internal {i.name!r} starts from {i.init!r}, which is not a parameter")

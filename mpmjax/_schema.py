@@ -43,6 +43,7 @@ class Key:
     lo_open: bool = False  # True: value must be > lo
     hi: float | None = None
     choices: tuple | None = None
+    only_3d: bool = False  # meaningful in 3D scenes only: setting it in a 2D scene is an error
 
 
 _REQ = object()  # marker: required
@@ -58,8 +59,8 @@ _HEAD: dict[str, Key] = {
     "boundary.x_hi": Key(str, "slip", "-", "Condition on the x-max face.", choices=FACE_KINDS),
     "boundary.y_lo": Key(str, "noslip", "-", "Condition on the y-min face.", choices=FACE_KINDS),
     "boundary.y_hi": Key(str, "slip", "-", "Condition on the y-max face.", choices=FACE_KINDS),
-    "boundary.z_lo": Key(str, "noslip", "-", "Condition on the z-min face (3D).", choices=FACE_KINDS),
-    "boundary.z_hi": Key(str, "slip", "-", "Condition on the z-max face (3D).", choices=FACE_KINDS),
+    "boundary.z_lo": Key(str, "noslip", "-", "Condition on the z-min face (3D).", choices=FACE_KINDS, only_3d=True),
+    "boundary.z_hi": Key(str, "slip", "-", "Condition on the z-max face (3D).", choices=FACE_KINDS, only_3d=True),
     "boundary.planes": Key(
         "table-list",
         [],
@@ -156,7 +157,9 @@ _TAIL: dict[str, Key] = {
         lo=-89.0,
         hi=89.0,
     ),
-    "gravity.transverse_slope_deg": Key(float, 0.0, "deg", "3D only: tilt towards +y.", lo=-89.0, hi=89.0),
+    "gravity.transverse_slope_deg": Key(
+        float, 0.0, "deg", "3D only: tilt towards +y.", lo=-89.0, hi=89.0, only_3d=True
+    ),
     "bodies": Key(
         "table-list", _REQ, "-", 'Material blocks: tables with type = "box", lo_m, hi_m and optional velocity_m_s.'
     ),
@@ -287,10 +290,25 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key, val
 
 
+def _plain(val: Any) -> Any:
+    """Numpy scalars and arrays (also inside lists, tuples and dicts) as plain Python numbers
+    and lists, so that messages print ``5.0``, not ``np.float64(5.0)``."""
+    if isinstance(val, np.ndarray):
+        return val.tolist()
+    if isinstance(val, np.generic):
+        return val.item()
+    if isinstance(val, (list, tuple)):
+        return [_plain(a) for a in val]
+    if isinstance(val, dict):
+        return {k: _plain(a) for k, a in val.items()}
+    return val
+
+
 def _show(val: Any, limit: int = 120) -> str:
-    """``repr`` for error messages: never raises (huge ints) and is cut to ``limit`` characters."""
+    """``repr`` for error messages (numpy values as plain numbers, ``_plain``): never raises
+    (huge ints) and is cut to ``limit`` characters."""
     try:
-        text = repr(val)
+        text = repr(_plain(val))
     except Exception:  # e.g. ValueError: int too large for str()  # noqa: BLE001
         text = f"<{type(val).__name__}>"
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -331,8 +349,9 @@ def _check(key: str, val: Any, spec: Key, dim: int):
         if isinstance(val, bool) or not isinstance(val, (int, float)):
             bad("expected a number")
         val = _to_float(val)
-        if not math.isfinite(val) and not (key in _NAN_DEFAULT and math.isnan(val)):
-            bad("must be finite")
+        if not math.isfinite(val):
+            # NaN is the internal "derived" default of the _NAN_DEFAULT keys, never a user's value
+            bad("must be finite" + (" (leave the key out for the default)" if key in _NAN_DEFAULT else ""))
     elif spec.type is int:
         if isinstance(val, bool) or not isinstance(val, int):
             bad("expected an integer")
@@ -346,7 +365,7 @@ def _check(key: str, val: Any, spec: Key, dim: int):
             bad("must not contain NUL characters")
     if spec.choices is not None and val not in spec.choices:
         bad(f"allowed values: {', '.join(map(str, spec.choices))}")
-    if spec.lo is not None and not (isinstance(val, float) and math.isnan(val)):
+    if spec.lo is not None:
         if val < spec.lo or (spec.lo_open and val == spec.lo):
             rng = f"> {spec.lo}" if spec.lo_open else f">= {spec.lo}"
             if spec.hi is not None:
@@ -357,6 +376,8 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     return val
 
 
+# keys whose default is NaN, meaning "derived from the scene" (the key's doc says how); a NaN
+# given by the user is refused like any non-finite value
 _NAN_DEFAULT = ("output.runout_origin_m", "inflow.t_stop_s")
 _MAX_PARTICLES = 2**31 - 1
 _F32 = np.finfo(np.float32)
@@ -465,7 +486,7 @@ def _validate_inflow(out: dict, dim: int, lo, hi, h):
         )
     p = np.asarray(pt)
     if np.any(p < lo) or np.any(p > hi):
-        raise SceneError(f"inflow.point_m = {pt} lies outside the domain [{list(lo)}, {list(hi)}] (m)")
+        raise SceneError(f"inflow.point_m = {pt} lies outside the domain [{_plain(lo)}, {_plain(hi)}] (m)")
     t0, t1 = out["inflow.t_start_s"], out["inflow.t_stop_s"]
     t1 = out["time.t_end_s"] if math.isnan(t1) else t1
     if t1 <= t0:
@@ -486,6 +507,39 @@ def _validate_inflow(out: dict, dim: int, lo, hi, h):
             f"inflow: {n:.4g} pool particles (flow_rate_m3_s = {out['inflow.flow_rate_m3_s']}, "
             f"{t1 - t0} s); the limit is {_MAX_PARTICLES}"
         )
+
+
+def _law_keys(law) -> set[str]:
+    """The material keys a law reads: its parameters and options, the model and the shear
+    measure (every law's viscosity is fed the shear rate it selects: ``Scene.shear_measure``)."""
+    return {d.key for d in law.params + law.options} | {"material.model", "material.shear_measure"}
+
+
+def _validate_material(flat: dict, out: dict) -> None:
+    """The material keys given must belong to the chosen law, and its ordered parameter pairs
+    (``Law.ordered_params``, e.g. Coussot's mu0 <= mu_max) must be in order."""
+    model = out["material.model"]
+    law = _rheology.MODELS[model]
+    used = _law_keys(law)
+    unused = [k for k in flat if k.startswith("material.") and k not in used]
+    if unused:
+        k = unused[0]
+        users = [name for name, cls in _rheology.MODELS.items() if k in _law_keys(cls)]
+        raise SceneError(
+            f"{k} = {_show(flat[k])} is invalid with material.model = {model!r}: that law does not use it"
+            + (f" ({len(unused) - 1} more such key(s): {', '.join(unused[1:])})" if len(unused) > 1 else "")
+            + f"; allowed material keys for {model}: {', '.join(sorted(used))}"
+            + (f" (the key belongs to material.model = {', '.join(users)})" if users else "")
+        )
+    key_of = {p.name: p for p in law.params}
+    for lo_name, hi_name in law.ordered_params:
+        lo_p, hi_p = key_of[lo_name], key_of[hi_name]
+        a, b = out[lo_p.key], out[hi_p.key]
+        if b < a:
+            raise SceneError(
+                f"{hi_p.key} = {_show(b)} is invalid with {lo_p.key} = {_show(a)}: allowed range: >= {lo_p.key} "
+                f"= {_show(a)} ({hi_p.unit}); material.model = {model!r} needs {lo_name} <= {hi_name}"
+            )
 
 
 def validate(raw: dict) -> dict:
@@ -534,15 +588,21 @@ def validate(raw: dict) -> dict:
     if not math.isfinite(n_total) or n_total > 5e7:
         n_cells = float(np.prod(np.round(ncell))) if math.isfinite(n_total) else math.inf
         raise SceneError(
-            f"domain.cell_size_m = {h} gives {n_cells:.4g} cells for the domain size {list(size)} m; "
+            f"domain.cell_size_m = {h} gives {n_cells:.4g} cells for the domain size {_plain(size)} m; "
             "the limit is 5e7 (including the ghost layers)"
         )
     if np.any(ncell < 1) or np.any(np.abs(ncell - np.round(ncell)) > 1e-6 * np.maximum(ncell, 1)):
         raise SceneError(
-            f"domain.cell_size_m = {h} must divide the domain size {list(size)} into a whole number (>= 1) of cells"
+            f"domain.cell_size_m = {h} must divide the domain size {_plain(size)} into a whole number (>= 1) of cells"
         )
-    if dim == 2 and any(k.startswith("boundary.z") for k in flat):
-        raise SceneError("boundary.z_lo / boundary.z_hi are only valid in 3D scenes (domain.dim = 3)")
+    if dim == 2:
+        only3 = [k for k in flat if SCHEMA[k].only_3d]
+        if only3:
+            raise SceneError(
+                f"{', '.join(f'{k} = {_show(flat[k])}' for k in only3)} is invalid in a 2D scene (domain.dim = 2): "
+                "allowed only in 3D scenes (domain.dim = 3); remove it"
+            )
+    _validate_material(flat, out)
     if not out["bodies"] and out["inflow.point_m"] is None:
         raise SceneError("bodies = [] is invalid: at least one material body (or an inflow) is required")
     n_particles = 0
@@ -561,11 +621,11 @@ def validate(raw: dict) -> dict:
             f"bodies[{i}].velocity_m_s", b.get("velocity_m_s", [0.0] * dim), Key("vec", None, "m/s", "velocity"), dim
         )
         if np.any(bhi <= blo):
-            raise SceneError(f"bodies[{i}]: hi_m = {list(bhi)} must exceed lo_m = {list(blo)} on every axis")
+            raise SceneError(f"bodies[{i}]: hi_m = {_plain(bhi)} must exceed lo_m = {_plain(blo)} on every axis")
         if np.any(blo < lo - 1e-9) or np.any(bhi > hi + 1e-9):
             raise SceneError(
-                f"bodies[{i}] = [{list(blo)}, {list(bhi)}] lies outside the domain "
-                f"[domain.lo_m, domain.hi_m] = [{list(lo)}, {list(hi)}] (m)"
+                f"bodies[{i}] = [{_plain(blo)}, {_plain(bhi)}] lies outside the domain "
+                f"[domain.lo_m, domain.hi_m] = [{_plain(lo)}, {_plain(hi)}] (m)"
             )
         n_particles += _body_particle_count(blo, bhi, h / out["numerics.ppc"])
     if n_particles > _MAX_PARTICLES:
@@ -640,6 +700,9 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
     except (ValueError, RecursionError) as e:  # TOMLDecodeError; ValueError: integer too long; deep nesting
         raise SceneError(f"{path}: not valid TOML: {e}") from None
     items = overrides.items() if isinstance(overrides, dict) else [parse_override(o) for o in (overrides or [])]
+    items = list(items)
+    file_mat = raw.get("material") if isinstance(raw.get("material"), dict) else {}
+    file_model = file_mat.get("model", SCHEMA["material.model"].default)
     for key, val in items:
         if key not in SCHEMA:
             raise SceneError(f"--set {key}: unknown key. Known keys: see `mpmjax scenes --keys` or docs/scenes.md")
@@ -650,12 +713,34 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
             if not isinstance(node, dict):
                 raise SceneError(f"--set {key}: {p} is not a table in {path}")
         node[parts[-1]] = val
+    _drop_switched_law_keys(raw, file_model, file_mat, {k for k, _ in items})
     ter = raw.get("terrain")
     if isinstance(ter, dict) and isinstance(ter.get("csv"), str) and ter["csv"]:
         if "\x00" in ter["csv"]:
             raise SceneError(f"terrain.csv = {ter['csv']!r}: a file path cannot contain a NUL character")
         ter["csv"] = str((path.parent / ter["csv"]).resolve()) if not Path(ter["csv"]).is_absolute() else ter["csv"]
     return validate(raw)
+
+
+def _drop_switched_law_keys(raw: dict, file_model, file_keys: dict, set_keys: set) -> None:
+    """``--set material.model=OTHER`` switches a scene file's law: the file's keys of its own
+    law that the new law does not read are dropped (they described the old law; the validated
+    scene then holds the defaults there).  Keys the file's own law never read are still
+    refused, as are ``--set`` keys the new law does not read."""
+    mat = raw.get("material")
+    if "material.model" not in set_keys or not isinstance(mat, dict):
+        return
+    new_model = mat.get("model")
+    if not (isinstance(new_model, str) and isinstance(file_model, str)) or new_model == file_model:
+        return
+    if new_model not in _rheology.MODELS or file_model not in _rheology.MODELS:
+        return
+    old_keys = _law_keys(_rheology.MODELS[file_model])
+    new_keys = _law_keys(_rheology.MODELS[new_model])
+    for k in list(file_keys):
+        key = f"material.{k}"
+        if key in old_keys and key not in new_keys and key not in set_keys:
+            mat.pop(k, None)
 
 
 def schema_markdown() -> str:

@@ -4,10 +4,13 @@ calibrate | sweep``: argument parsing and dispatch only; the work is done by the
 ``calibration``.
 
 Exit status: 0 success, 2 invalid input (the message names the key, the value and the
-allowed range; also a ``--resume`` that does not match), 3 a run stopped by a failed health
-check (NaN, absurd J, lost particles, CFL; frames already written stay readable), 130
-interrupted by Ctrl-C (143 by SIGTERM; frames already written stay readable and
-``mpmjax run --resume DIR`` continues), 1 other errors.
+allowed range; also a ``--resume`` that does not match, an ``--out`` that is a file or cannot be
+created or written, a run refused by the memory estimate), 3 a run stopped by a failed health
+check (NaN, absurd J, lost particles, CFL; frames already written stay readable; ``mpmjax
+stress``: a case failed its criteria), 4 a run stopped because its output could not be written
+(frames already written stay readable), 130 interrupted by Ctrl-C, also while compiling (143 by
+SIGTERM; frames already written stay readable and ``mpmjax run --resume DIR`` continues), 1
+other errors (a bug).  Every status but 1 comes with a one-line message, no traceback.
 """
 
 from __future__ import annotations
@@ -20,8 +23,17 @@ from pathlib import Path
 from calibration import cli as calcli
 
 from . import rheometer
-from ._schema import SCHEMA, SceneError, builtin_scenes
-from ._driver import ANIMATION_MAX_FRAMES, CHECKPOINT_EVERY, FAILED, Interrupted, fail, run_scene
+from ._schema import _REQ, SCHEMA, SceneError, builtin_scenes
+from ._driver import (
+    ANIMATION_MAX_FRAMES,
+    CHECKPOINT_EVERY,
+    FAILED,
+    OUTPUT_FAILED,
+    Interrupted,
+    OutputFailure,
+    fail,
+    run_scene,
+)
 from ._health import RunFailure
 from .studies import bench, converge, pareto, records, stress
 from .studies.tables import run_study
@@ -30,14 +42,14 @@ from .studies.tables import run_study
 def cmd_scenes(args) -> int:
     if args.keys:
         for key, spec in SCHEMA.items():
-            default = "(required)" if spec.default is not None and spec.default.__class__ is object else spec.default
+            default = "(required)" if spec.default is _REQ else repr(spec.default)
             rng = ""
             if spec.choices:
                 rng = "one of " + ", ".join(map(str, spec.choices))
             elif spec.lo is not None or spec.hi is not None:
                 rng = f"{'>' if spec.lo_open else '>='} {spec.lo}" if spec.lo is not None else ""
                 rng += f"{', ' if rng else ''}<= {spec.hi}" if spec.hi is not None else ""
-            print(f"{key:38s} [{spec.unit}] default={default!r} {rng}\n    {spec.doc}")
+            print(f"{key:38s} [{spec.unit}] default={default} {rng}\n    {spec.doc}")
         return 0
     for name, path in sorted(builtin_scenes().items()):
         desc = tomllib.loads(path.read_text()).get("description", "").split(". ")[0]
@@ -73,8 +85,12 @@ def cmd_run(args) -> int:
             file=sys.stderr,
         )
         return FAILED
+    except OutputFailure as e:
+        print(f"\nmpmjax: {e}", file=sys.stderr)
+        return OUTPUT_FAILED
     except Interrupted as e:
-        print(f"\n{e.message}", file=sys.stderr)
+        msg = e.message or f"interrupted: frames written so far remain readable in {out / 'result.h5'}"
+        print(f"\n{msg}", file=sys.stderr)
         return 128 + e.signum
     except KeyboardInterrupt:
         print(f"\ninterrupted: frames written so far remain readable in {out / 'result.h5'}", file=sys.stderr)

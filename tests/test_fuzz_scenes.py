@@ -11,6 +11,7 @@ ranges.  ``build`` is only called when validation passed and the grid is small.
 
 import copy
 import math
+import re
 import tomllib
 
 import numpy as np
@@ -31,6 +32,7 @@ SMALL_BODY_3D = {"type": "box", "lo_m": [0.0, 0.0, 0.0], "hi_m": [0.08, 0.08, 0.
 MAX_BUILD_CELLS = 5000
 MAX_BUILD_PARTICLES = 40000
 
+NUMPY_REPR = re.compile(r"np\.\w+\(|array\(")  # a numpy repr in a message
 FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
 
 
@@ -86,6 +88,7 @@ def check(raw, mutated):
     except mpmjax.SceneError as e:
         msg = str(e)
         assert any(n in msg for n in names), (msg, sorted(mutated))
+        assert not NUMPY_REPR.search(msg), msg  # plain numbers, never np.float64(5.0) (issue 17 item 6)
         return "invalid"
     ncell = np.prod(
         np.round((np.asarray(cfg["domain.hi_m"]) - np.asarray(cfg["domain.lo_m"])) / cfg["domain.cell_size_m"])
@@ -98,6 +101,7 @@ def check(raw, mutated):
     except mpmjax.SceneError as e:
         msg = str(e)
         assert any(n in msg for n in names), (msg, sorted(mutated))
+        assert not NUMPY_REPR.search(msg), msg
         return "build error"
     sc = setup.scene
     assert math.isfinite(sc.dt) and sc.dt > 0 and sc.steps_per_frame >= 1
@@ -380,7 +384,8 @@ def test_known_crashers():
         assert check(raw, {key}) == "build error", key
     raw = small_base()
     raw["numerics"].update(dtype="float64", viscous_update="explicit")
-    raw["material"].update(model="newtonian", viscosity_pa_s=1e300)  # dt_visc ~ 1e-300: steps per frame overflow
+    raw["material"] = {"model": "newtonian", "density_kg_m3": 1850.0, "bulk_modulus_pa": 15000.0}
+    raw["material"]["viscosity_pa_s"] = 1e300  # dt_visc ~ 1e-300: steps per frame overflow
     msg = _build_error(raw)
     assert "material.viscosity_pa_s" in msg and "time.t_end_s" in msg, msg
     assert check("not a table", {""}) == "invalid"

@@ -34,8 +34,8 @@ kernel, relative to the exact height at the wall.
 Per series (one setting across the levels): successive differences of the runout, their
 ratio per halving, the observed order p = log2(|q_h - q_h/2| / |q_h/2 - q_h/4|) of the finest
 three levels and the Richardson extrapolate q_0 = q_h/4 + (q_h/4 - q_h/2) / (2^p - 1)
-(REFERENCE.md), reported only where 0 < p < 6 (a ratio outside that range is not a
-convergent sequence; then null and the reason).
+(REFERENCE.md), reported only where the differences keep their sign and 0.5 <= p < 6 (below
+0.5 the extrapolate lies more than 2.4 last differences away; then null and the reason).
 
 The JSON is rewritten after every run (an interrupt keeps the finished runs, and a rerun
 reuses them; ``--fresh`` reruns).  The final particle positions of every run are kept in
@@ -246,8 +246,9 @@ def richardson(q) -> dict:
     out["order"] = p
     if (b - a) * (c - b) < 0:
         out["reason"] = "differences change sign (oscillating, not monotone)"
-    elif not 0 < p < 6:
-        out["reason"] = f"observed order {p:.2f} outside (0, 6): not in the asymptotic range"
+    elif not 0.5 <= p < 6:
+        # below 0.5 the extrapolation adds more than 2.4x the last difference: not trusted
+        out["reason"] = f"observed order {p:.2f} outside [0.5, 6): not in the asymptotic range"
     else:
         out["extrapolate"] = c + (c - b) / (2**p - 1)
     return out

@@ -47,12 +47,21 @@ from .._metrics import beach_slope, surface_profile
 # --------------------------------------------------------------------------------------
 SCALES_M = (0.2, 1.0, 10.0, 100.0)
 BASE_L_M = 0.2  # block size of the scale-study.toml base scene
-# the three rheologies of Table 9; the base scene is Bingham (tau_y = 30 Pa, mu = 0.05 Pa s)
-# and carries Coussot's mu0 = 1 Pa s, alpha = 0.36, T = 1 s (alpha T = 0.36), lambda0, mu_max
+# the three rheologies of Table 9; the base scene is Bingham (tau_y = 30 Pa, mu = 0.05 Pa s);
+# Coussot: mu0 = 1 Pa s, alpha = 0.36, T = 1 s (alpha T = 0.36), lambda0 = 1.5, mu_max = 5000 Pa s
+# (a scene may not carry keys its law does not read, so these come with the switch of law)
+_COUSSOT = [
+    "material.model=coussot",
+    "material.mu0_pa_s=1.0",
+    "material.alpha=0.36",
+    "material.T_s=1.0",
+    "material.lambda0=1.5",
+    "material.mu_max_pa_s=5000.0",
+]
 SCALE_MATERIALS = {
     "bingham": [],
-    "coussot-1": ["material.model=coussot", "material.n=2.5"],
-    "coussot-2": ["material.model=coussot", "material.n=1.076"],
+    "coussot-1": [*_COUSSOT, "material.n=2.5"],
+    "coussot-2": [*_COUSSOT, "material.n=1.076"],
 }
 MATERIAL_LABEL = {"bingham": "Bingham", "coussot-1": "Coussot 1 (n = 2.5)", "coussot-2": "Coussot 2 (n = 1.076)"}
 # thesis §5.1: runout difference to Bingham at 100 m, "over 7.5 % and 35 %, respectively"

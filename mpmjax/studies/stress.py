@@ -62,7 +62,7 @@ import numpy as np
 
 from .._build import build
 from .._schema import load_scene
-from .._driver import Progress, fail
+from .._driver import FAILED, Progress, fail
 from .._io import atomic_write_text
 from .._constitutive import TAIT_C
 from .._step import make_step
@@ -237,6 +237,8 @@ def run_case(case: Case, size: str = "ci", progress=None) -> dict:
     compile_s = time.perf_counter() - t0
     state = s.state
     accs = []
+    if progress is not None:
+        progress(0, n_chunks, 0.0)  # compiled: the progress clock (and its estimate) starts here
     t0 = time.perf_counter()
     for i in range(n_chunks):
         state, acc = adv(state, params, x0, ke0)
@@ -391,7 +393,10 @@ def add_arguments(p):
 
 
 def cmd_stress(args) -> int:
-    """Exit 0 when every case passes, 1 when one fails, 2 on invalid input, 130 on interrupt."""
+    """Exit 0 when every case passes, 3 (``FAILED``) when one fails a criterion, 2 on invalid
+    input, 130 on interrupt (1 stays for unexpected errors).  At the thesis's kappa = 15 kPa,
+    ``slope-30deg`` and ``drop-1m`` exceed the volume bound (docs/performance.md), so a run of
+    all cases exits 3."""
     log = lambda *a: print(*a, file=sys.stderr)  # noqa: E731
     try:
         recs = run_stress(args.size, args.case, Path(args.out), log)
@@ -402,4 +407,12 @@ def cmd_stress(args) -> int:
         return 130
     print(format_table(recs))
     print(f"wrote {args.out}")
-    return 0 if all(r["passed"] for r in recs) else 1
+    failed = [r["case"] for r in recs if not r["passed"]]
+    if failed:
+        print(
+            f"mpmjax stress: {len(failed)} of {len(recs)} case(s) failed a criterion: {', '.join(failed)} "
+            "(docs/performance.md explains the known ones)",
+            file=sys.stderr,
+        )
+        return FAILED
+    return 0
