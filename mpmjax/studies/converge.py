@@ -165,13 +165,19 @@ def slump_errors(rec: dict, h: float) -> None:
     """The slump's errors against the exact static profile (added to ``rec``): the front
     against x_f, and against the same front definition applied to the exact profile (the
     exact profile smoothed with the run's bandwidth h: what a perfect solver would read);
-    the farthest particle against x_f; the profile's RMS error over x <= 0.9 x_f (the tip's
-    last 10 % is the kernel's, not the solver's) relative to the exact height at the wall."""
+    the farthest particle against x_f; the profile's RMS error relative to the exact height at
+    the wall, over 0.2 x_f <= x <= 0.9 x_f (``profile_err_pct``) and over x <= 0.9 x_f
+    (``profile_err_with_wall_pct``).  The tip's last 10 % is the kernel's, not the solver's;
+    the first 20 % is within about one deposit height of the symmetry wall, where the exact
+    profile's thin-layer (lubrication) assumption h << L does not hold: every shape and ppc
+    at 8 to 32 cells over the block lies 9-12 % below it there and within ~4 % beyond it
+    (docs/validation.md)."""
     x_f, k = _slump_exact(rec.get("area_m2", 0.04))
     xs = np.arange(0.0, 1.0 + 0.5 * PROFILE_STATION, PROFILE_STATION)
     hs = np.asarray(rec["profile_m"])
     ex = exact_slump_profile(xs, x_f, k, PROFILE_BANDWIDTH["slump"])
-    inner = xs <= 0.9 * x_f
+    inner = (xs >= 0.2 * x_f) & (xs <= 0.9 * x_f)
+    whole = xs <= 0.9 * x_f
     # the definition on the exact profile: smoothed with bandwidth h, last crossing of 10 % of its max
     xf_def = _exact_front_by_definition(x_f, k, h)
     rec.update(
@@ -181,6 +187,7 @@ def slump_errors(rec: dict, h: float) -> None:
         front_err_def_pct=100.0 * (rec["runout_m"] - xf_def) / x_f,
         farthest_err_pct=100.0 * (rec["runout_farthest_m"] - x_f) / x_f,
         profile_err_pct=float(100 * np.sqrt(np.mean((hs[inner] - ex[inner]) ** 2)) / math.sqrt(k * x_f)),
+        profile_err_with_wall_pct=float(100 * np.sqrt(np.mean((hs[whole] - ex[whole]) ** 2)) / math.sqrt(k * x_f)),
     )
 
 
@@ -330,14 +337,14 @@ def markdown(doc: dict) -> str:
         out.append(f"\n#### {case}: {crow['description']}\n")
         out.append(
             "| series | h (m) | particles | steps | loop CPU (s) | runout (m) | farthest (m) | error (%) "
-            + ("| front vs exact x_f (%) | vs exact by definition (%) | profile RMS vs exact (%) " if case == "slump" else "")
+            + ("| front vs exact x_f (%) | vs exact by definition (%) | profile RMS, 0.2-0.9 x_f (%) | with the wall region (%) " if case == "slump" else "")
             + "| status |"
         )
-        out.append("|" + "---|" * (12 if case == "slump" else 9))
+        out.append("|" + "---|" * (13 if case == "slump" else 9))
         for r in crow["rows"]:
             extra = (
                 f"| {_fmt(r.get('front_err_pct'), '+.2f')} | {_fmt(r.get('front_err_def_pct'), '+.2f')} "
-                f"| {_fmt(r.get('profile_err_pct'), '.2f')} "
+                f"| {_fmt(r.get('profile_err_pct'), '.2f')} | {_fmt(r.get('profile_err_with_wall_pct'), '.2f')} "
                 if case == "slump"
                 else ""
             )
