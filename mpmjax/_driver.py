@@ -783,7 +783,7 @@ def _finish(out, setup, cfg, state, acc, advance, compile_s, base_summary, anima
         summary.update(_metrics.plan_view_summary(res, out / "plan_view.h5"))
         written.insert(3, "plan_view.h5")
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
-    plotting.plot_result(out / "result.png", res["frames"], summary, cfg["name"])
+    plotting.plot_result(out / "result.png", res, summary, cfg["name"])
     if sc.dim == 3:
         plotting.plot_3d_overview(res, out / "plan_view.h5", summary, out)
         written += ["plan_view.png", "sections.png"]
