@@ -38,7 +38,7 @@ import mpmjax
 
 from .params import SCENE_KEYS
 
-__all__ = ["FIELD_KEYS", "parse_vary", "sweep", "write_sweep"]
+__all__ = ["FIELD_KEYS", "NO_SENSITIVITY_M", "parse_vary", "sweep", "sweep_figures", "write_sweep"]
 
 # material field -> scene key (SI units in the key's name), from the laws' declarations
 FIELD_KEYS = SCENE_KEYS
@@ -199,8 +199,8 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
 def write_sweep(res: dict, out) -> list[Path]:
     """Write ``sweep.csv`` (one row per case: varied values, final runout [m], time to rest
     [s], lost particles), ``sweep.json`` (everything, with per-frame series) and plots
-    (``sweep_runout.png``: final runout against each varied parameter; ``sweep_profiles.png``:
-    final height profiles) to the folder ``out``.  Returns the paths."""
+    (``sweep_figures``: ``sweep_runout.png``, final runout against each varied parameter;
+    ``sweep_profiles.png``, final height profiles) to the folder ``out``.  Returns the paths."""
     # matplotlib only when plots are written (optional heavy import)
     import matplotlib
 
@@ -249,38 +249,110 @@ def write_sweep(res: dict, out) -> list[Path]:
     mpmjax.atomic_write_text(out / "sweep.json", json.dumps(doc, indent=1))
     del units
     paths = [out / "sweep.csv", out / "sweep.json"]
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    for name, fig in sweep_figures(res).items():
+        try:
+            fig.savefig(out / name, dpi=110)
+        finally:
+            plt.close(fig)
+        paths.append(out / name)
+    return paths
+
+
+NO_SENSITIVITY_M = 1e-3  # a spread of the results below this [m] is reported as "no sensitivity"
+
+
+def _ranges(res) -> str:
+    """The varied parameters' ranges for plot titles: ``n = 1.5-3 (4 values), mu0 = 1-4 (2 values)``."""
+    parts = []
+    for k, v in res["vary"].items():
+        lo, hi = min(v), max(v)
+        span = f"{lo:g}" if lo == hi else f"{lo:g}–{hi:g}"
+        parts.append(f"{k} = {span} ({len(set(v))} value{'s' if len(set(v)) != 1 else ''})")
+    return ", ".join(parts)
+
+
+def _plain_axes(ax):
+    """Absolute tick labels: no offset (``+1.19``) and no scientific notation on a linear axis."""
+    for axis in ("x", "y"):
+        if getattr(ax, f"get_{axis}scale")() == "linear":
+            ax.ticklabel_format(axis=axis, useOffset=False, style="plain")
+
+
+def sweep_figures(res: dict) -> dict:
+    """The sweep's plots as matplotlib Figures, by file name: ``sweep_runout.png`` (final runout
+    against each varied parameter, one line per combination of the others) and, in 2D,
+    ``sweep_profiles.png`` (final height profiles).  Axes are absolute (no offset notation);
+    titles give the parameter ranges; a panel where the results vary by less than
+    ``NO_SENSITIVITY_M`` (1 mm) says "no sensitivity" and is drawn on a y range of at least
+    1 cm, so that rounding-level differences do not show as steep lines."""
+    # matplotlib only when plots are made (optional heavy import)
+    import matplotlib.pyplot as plt
+
+    names = list(res["vary"])
+    rng = _ranges(res)
+    figs = {}
+    fig, axes = plt.subplots(1, len(names), figsize=(4.4 * len(names), 3.6), squeeze=False)
+    final = np.asarray(res["final_runout_m"], float)
     for j, k in enumerate(names):
         ax = axes[0, j]
         others = [o for o in names if o != k]
         groups = {}
         for i, c in enumerate(res["cases"]):
             groups.setdefault(tuple(c[o] for o in others), []).append(i)
+        spread = 0.0  # largest change of the final runout with k alone (the others fixed)
         for key, ii in groups.items():
             ii = sorted(ii, key=lambda i: res["cases"][i][k])
+            vals = final[ii]
+            fin = vals[np.isfinite(vals)]
+            if fin.size:
+                spread = max(spread, float(fin.max() - fin.min()))
             lab = ", ".join(f"{o}={v:g}" for o, v in zip(others, key, strict=True)) or None
-            ax.plot([res["cases"][i][k] for i in ii], res["final_runout_m"][ii], "o-", label=lab)
-        ax.set_xlabel(k)
+            ax.plot([res["cases"][i][k] for i in ii], vals, "o-", label=lab)
+        fin = final[np.isfinite(final)]
+        if fin.size and float(fin.max() - fin.min()) < 0.01:
+            mid = 0.5 * float(fin.max() + fin.min())
+            ax.set_ylim(mid - 0.005, mid + 0.005)
+        if spread < NO_SENSITIVITY_M:
+            ax.text(
+                0.5, 0.5, f"no sensitivity\n(final runout changes by {1e3 * spread:.2g} mm < 1 mm)",
+                transform=ax.transAxes, ha="center", va="center", fontsize=9, color="#a00000",
+                bbox=dict(boxstyle="round", fc="white", ec="#a00000", alpha=0.9),
+            )
+        field = FIELD_KEYS.get(k)
+        ax.set_xlabel(f"{k}" + (f" ({field})" if field else ""))
         ax.set_ylabel("final runout [m]")
+        vals_k = [c[k] for c in res["cases"]]
+        ax.set_title(f"{k} = {min(vals_k):g}–{max(vals_k):g}: spread {1e3 * spread:.3g} mm", fontsize=9)
+        _plain_axes(ax)
         ax.grid(alpha=0.3)
         if others and len(groups) <= 8:
             ax.legend(fontsize=7)
-    fig.suptitle(f"{res['scene']}: final runout at t = {res['times_s'][-1]:g} s")
+    fig.suptitle(f"{res['scene']}: final runout at t = {res['times_s'][-1]:g} s; {rng}", fontsize=10)
     fig.tight_layout()
-    fig.savefig(out / "sweep_runout.png", dpi=110)
-    plt.close(fig)
-    paths.append(out / "sweep_runout.png")
+    figs["sweep_runout.png"] = fig
     if res.get("dim", 2) == 2:
-        fig, ax = plt.subplots(figsize=(7, 3.2))
+        fig, ax = plt.subplots(figsize=(7.5, 3.6))
+        hp = np.asarray(res["profile_h_m"], float)
         for i, c in enumerate(res["cases"]):
-            ax.plot(res["profile_x_m"], res["profile_h_m"][i], lw=1, label=", ".join(f"{k}={c[k]:g}" for k in names))
+            ax.plot(res["profile_x_m"], hp[i], lw=1, label=", ".join(f"{k}={c[k]:g}" for k in names))
+        spread = float(np.nanmax(np.nanmax(hp, axis=0) - np.nanmin(hp, axis=0))) if hp.size else 0.0
+        if spread < NO_SENSITIVITY_M:
+            ax.text(
+                0.5, 0.5, f"no sensitivity\n(profiles differ by at most {1e3 * spread:.2g} mm < 1 mm)",
+                transform=ax.transAxes, ha="center", va="center", fontsize=9, color="#a00000",
+                bbox=dict(boxstyle="round", fc="white", ec="#a00000", alpha=0.9),
+            )
         ax.set_xlabel("x [m]")
         ax.set_ylabel("height h [m]")
-        ax.set_title("final height profiles")
+        ax.set_title(
+            f"{res['scene']}: final height profiles at t = {res['times_s'][-1]:g} s\n{rng}; "
+            f"largest difference {1e3 * spread:.3g} mm",
+            fontsize=9,
+        )
+        _plain_axes(ax)
+        ax.grid(alpha=0.3)
         if len(res["cases"]) <= 12:
             ax.legend(fontsize=6)
         fig.tight_layout()
-        fig.savefig(out / "sweep_profiles.png", dpi=110)
-        plt.close(fig)
-        paths.append(out / "sweep_profiles.png")
-    return paths
+        figs["sweep_profiles.png"] = fig
+    return figs

@@ -409,3 +409,121 @@ def build(cfg: dict) -> Setup:
         )
     return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
 
+
+
+# --- warnings at run start (issue 17 item 5) -------------------------------------------------
+
+BODY_CELLS_MIN = 4  # a body thinner than this many cells along an axis is under-resolved
+DT_FORCED_RATIO = 10.0  # warn when the frame interval forces dt this far below the stable step
+STEPS_WARN = 1_000_000  # warn when a run needs more steps than this
+# conservative time-loop rates [particle-steps/s] for the run-time estimates of the warnings: about
+# half of what the 2-core CPU VM measured (docs/performance.md: 2D 1-2.9 M, 3D 0.12-0.6 M)
+EST_RATE = {2: 1.0e6, 3: 1.0e5}
+EST_STEP_S = 2e-4  # and at least this per step (small runs: the per-step overhead, ~2000 steps/s)
+
+
+def estimate_run_time_s(n_particles: int, n_steps: int, dim: int) -> float:
+    """A conservative estimate [s] of the time loop of a run on a CPU: n_steps x max(n_particles /
+    EST_RATE[dim], EST_STEP_S).  A GPU is 1-2 orders of magnitude faster (docs/performance.md)."""
+    return float(n_steps) * max(float(n_particles) / EST_RATE.get(dim, EST_RATE[3]), EST_STEP_S)
+
+
+def _duration(s: float) -> str:
+    if s < 10:
+        return f"{s:.2g} s"
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 7200:
+        return f"{s / 60:.0f} min"
+    if s < 2 * 86400:
+        return f"{s / 3600:.1f} h"
+    return f"{s / 86400:.1f} days"
+
+
+def start_warnings(setup: Setup) -> list[str]:
+    """Warnings about a built run, printed before its time loop and kept in summary.json's
+    ``warnings`` (docs/output.md).  Each names the scene key, its value and what to change:
+
+    * a body fewer than ``BODY_CELLS_MIN`` cells thick along an axis (an axis it spans whole
+      on a periodic domain does not count);
+    * ``time.n_frames`` forcing the time step more than ``DT_FORCED_RATIO`` x below the step
+      the run would otherwise take (the stable step, or ``numerics.dt_s``): the frame interval
+      t_end / n_frames must be a whole number of steps, so a frame interval shorter than the
+      step makes each frame one step of exactly that interval;
+    * a run of more than ``STEPS_WARN`` steps, naming what sets the step (the bulk modulus for a
+      wave-speed limit), with the estimated run time (``estimate_run_time_s``)."""
+    cfg, sc, info = setup.cfg, setup.scene, setup.info
+    h, dim = sc.h, sc.dim
+    out = []
+    for i, b in enumerate(cfg["bodies"]):
+        lo, hi = np.asarray(b["lo_m"], float), np.asarray(b["hi_m"], float)
+        thin = []
+        for a in range(dim):
+            cells = (hi[a] - lo[a]) / h
+            whole_periodic = sc.periodic[a] and hi[a] - lo[a] >= sc.hi[a] - sc.lo[a] - 1e-9 * h
+            if cells < BODY_CELLS_MIN - 1e-9 and not whole_periodic:
+                thin.append(a)
+        if thin:
+            sizes = "; ".join(
+                f"{hi[a] - lo[a]:.4g} m = {(hi[a] - lo[a]) / h:.3g} cells along {'xyz'[a]} "
+                f"(bodies[{i}].lo_m[{a}] = {lo[a]:g}, hi_m[{a}] = {hi[a]:g})"
+                for a in thin
+            )
+            least = min(hi[a] - lo[a] for a in thin)
+            out.append(
+                f"bodies[{i}] is fewer than {BODY_CELLS_MIN} cells of domain.cell_size_m = {h:g} m thick: {sizes}; "
+                f"a body so thin is under-resolved (its runout and profile depend on the grid): set "
+                f"domain.cell_size_m <= {least / BODY_CELLS_MIN:.3g} m, or make the body thicker"
+            )
+    dt_req = float(cfg["numerics.dt_s"])
+    dt_target = dt_req if dt_req > 0 else float(info["dt_limit_s"])
+    what = f"numerics.dt_s = {dt_req:g} s" if dt_req > 0 else f"the stable time step {dt_target:.3g} s"
+    t_end, n_frames = float(cfg["time.t_end_s"]), int(cfg["time.n_frames"])
+    n_used = sc.n_particles  # (a pipe inflow's pool is stepped only once released: an upper bound)
+    est = estimate_run_time_s(n_used, sc.n_steps, dim)
+    if dt_target / sc.dt > DT_FORCED_RATIO:
+        frames_ok = max(1, int(math.floor(t_end / dt_target)))
+        est_ok = estimate_run_time_s(n_used, math.ceil(t_end / dt_target), dim)
+        out.append(
+            f"time.n_frames = {n_frames} forces dt = {sc.dt:.3g} s, {dt_target / sc.dt:.3g}x below {what}: a frame "
+            f"every {t_end / n_frames:.3g} s (time.t_end_s = {t_end:g} s) must be a whole number of steps, so every "
+            f"step is a frame; {sc.n_steps} steps, estimated run time {_duration(est)} on a CPU (about "
+            f"{_duration(est_ok)} at the stable step): set time.n_frames <= {frames_ok} (a frame at most every dt: "
+            "the step is then within 2x of the limit)"
+        )
+    if sc.n_steps > STEPS_WARN:
+        wave = cfg["numerics.viscous_update"] == "maxwell" or info["dt_wave_s"] <= info["dt_viscous_s"]
+        if dt_req > 0:
+            cause = f"numerics.dt_s = {dt_req:g} s sets the step"
+            fix = "raise numerics.dt_s (up to the stable limit), "
+        elif dt_target / sc.dt > DT_FORCED_RATIO:
+            cause, fix = "time.n_frames sets the step (above)", ""
+        elif wave:
+            rho = float(cfg["material.density_kg_m3"])
+            kappa = float(cfg["material.bulk_modulus_pa"])
+            v = float(info["velocity_scale_m_s"])
+            c = float(info["wave_speed_m_s"])
+            cause = (
+                f"material.bulk_modulus_pa = {kappa:.4g} Pa sets the step through the wave speed c = {c:.3g} m/s "
+                f"(wave-speed limit dt = numerics.cfl h / (c + v) = {info['dt_wave_s']:.3g} s, v = {v:.3g} m/s, "
+                f"h = domain.cell_size_m = {h:g} m)"
+            )
+            k_soft = rho * (10.0 * v) ** 2  # Mach 0.1 at the velocity scale (docs/scenarios.md)
+            fix = (
+                f"lower material.bulk_modulus_pa towards rho (10 v)^2 = {k_soft:.3g} Pa (Mach 0.1 at the velocity "
+                f"scale v = {v:.3g} m/s, weakly compressible; docs/scenarios.md), "
+                if k_soft < kappa and v > 0 and c > 10.0 * v
+                else ""
+            )
+        else:
+            cause = (
+                f"the viscous limit dt = {info['dt_viscous_s']:.3g} s sets the step (mu_max = "
+                f"{info['mu_max_pa_s']:.4g} Pa s, explicit viscous update)"
+            )
+            fix = "set numerics.viscous_update = \"maxwell\" (no viscous limit), lower the law's maximum viscosity, "
+        out.append(
+            f"the run needs {sc.n_steps} steps of dt = {sc.dt:.3g} s to time.t_end_s = {t_end:g} s (more than "
+            f"{STEPS_WARN:,}): {cause}; estimated run time {_duration(est)} on a CPU ({sc.n_particles} particles): "
+            f"{fix}raise domain.cell_size_m, or shorten time.t_end_s"
+        )
+    return out

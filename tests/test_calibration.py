@@ -396,3 +396,80 @@ def test_forward_mode_gradient_equals_reverse_mode():
     assert float(jnp.abs(rev[1]).min()) > 0
     with pytest.raises(ValueError, match="gradient = 'sideways' is invalid"):
         loss_function([e], ps, "sideways")
+
+
+# ---------------------------------------------------------------------------- sweep plots
+def _fake_sweep(final, profile_scale):
+    """A sweep result as ``sweep`` returns it (3 values of n x 2 of mu0), no simulation."""
+    from calibration.sweep import _cases
+
+    vary = {"n": [1.5, 2.0, 3.0], "mu0": [1.0, 4.0]}
+    cases = _cases(vary)
+    x = np.linspace(0.0, 2.0, 101)
+    prof = np.array([0.05 * np.exp(-x / (0.5 + profile_scale * i)) for i in range(len(cases))])
+    return {
+        "scene": "fake", "vary": vary, "cases": cases, "times_s": np.array([0.0, 5.0]),
+        "final_runout_m": np.asarray(final, float), "profile_x_m": x, "profile_h_m": prof, "dim": 2,
+    }
+
+
+def _texts(ax):
+    return [t.get_text() for t in ax.texts]
+
+
+def test_sweep_plots_flat_sweep_says_no_sensitivity_on_an_absolute_axis():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from calibration.sweep import sweep_figures
+
+    # final runouts within 0.3 mm of 1.19 m: the old plot drew this as steep lines labelled
+    # in offset notation (+1.19); now an absolute axis of at least 1 cm and the words
+    flat = _fake_sweep(1.19 + np.array([0.0, 1e-4, 3e-4, 2e-4, 1e-4, 0.0]), 0.0)
+    figs = sweep_figures(flat)
+    assert set(figs) == {"sweep_runout.png", "sweep_profiles.png"}
+    fig = figs["sweep_runout.png"]
+    fig.canvas.draw()
+    for ax in fig.axes:
+        assert any(t.startswith("no sensitivity") for t in _texts(ax)), ax.get_xlabel()
+        assert ax.yaxis.get_major_formatter().get_useOffset() is False
+        assert ax.yaxis.get_offset_text().get_text() == ""  # no "+1.19" / "1e-3" above the axis
+        lo, hi = ax.get_ylim()
+        assert hi - lo >= 0.01 - 1e-12 and lo < 1.19 < hi
+        # tick labels are absolute metres
+        ticks = [t.get_text().replace("−", "-") for t in ax.get_yticklabels() if t.get_text()]
+        assert ticks and all(abs(float(t) - 1.19) < 0.01 for t in ticks)
+    # the parameter ranges are in the titles
+    assert "n = 1.5–3 (3 values), mu0 = 1–4 (2 values)" in fig._suptitle.get_text()
+    assert fig.axes[0].get_title().startswith("n = 1.5–3")
+    prof = figs["sweep_profiles.png"]
+    (axp,) = prof.axes
+    assert any(t.startswith("no sensitivity") for t in _texts(axp))  # identical profiles
+    assert "n = 1.5–3 (3 values), mu0 = 1–4 (2 values)" in axp.get_title()
+    assert axp.xaxis.get_major_formatter().get_useOffset() is False
+    plt.close("all")
+
+
+def test_sweep_plots_real_sensitivity_is_drawn():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from calibration.sweep import sweep_figures
+
+    # runout falls with n by 5-10 cm (cases: n-major, mu0 minor); mu0 changes it by 0.5 mm only
+    final = np.array([1.20, 1.2005, 1.15, 1.1505, 1.10, 1.1005])
+    figs = sweep_figures(_fake_sweep(final, 0.2))
+    ax_n, ax_mu = figs["sweep_runout.png"].axes
+    assert not any(t.startswith("no sensitivity") for t in _texts(ax_n))
+    assert "spread 100 mm" in ax_n.get_title()
+    assert any(t.startswith("no sensitivity") for t in _texts(ax_mu))  # mu0 alone: 0.5 mm
+    # one line per combination of the other parameter, through the stored values
+    ys = sorted(tuple(np.round(ln.get_ydata(), 6)) for ln in ax_n.lines)
+    assert ys == [(1.2, 1.15, 1.1), (1.2005, 1.1505, 1.1005)]
+    (axp,) = figs["sweep_profiles.png"].axes
+    assert not any(t.startswith("no sensitivity") for t in _texts(axp))
+    plt.close("all")

@@ -218,3 +218,94 @@ def test_3d_views_and_runout():
         plotting.profiles(res, method="kernel")
     with pytest.raises(ValueError, match="allowed: 'side', 'plan'"):
         plotting.particles(res, 0, "mu", view="top")
+
+
+# --- result.png: the one-page report (issue 17 item 8) ---------------------------------------
+
+
+def _panels(fig, label):
+    return [a for a in fig.axes if a.get_label() == label]
+
+
+def test_result_report_panels(run):
+    out, summary, res = run
+    assert (out / "result.png").stat().st_size > 20_000
+    assert isinstance(summary["warnings"], list)
+    fig = plotting.result_figure(res, summary, "lab")
+    fr = res["frames"]
+    # 0.5 s run: the ~1 s and ~5 s snapshots fall after the end, so one viscosity side view (the end)
+    (side,) = _panels(fig, "side")
+    act = fr["active"][-1].astype(bool)
+    np.testing.assert_array_equal(np.asarray(side.collections[0].get_offsets()), fr["x_m"][-1][act])
+    # Coussot: λ of the last frame on its own panel, the stored values
+    (lam,) = _panels(fig, "lambda")
+    np.testing.assert_allclose(np.asarray(lam.collections[0].get_array()), fr["lambda"][-1][act], rtol=1e-6)
+    # thickness profiles: kernel height profiles (rest volumes, bandwidth one cell) at several
+    # times in time order; on stations reaching 4 bandwidths past both walls each integrates to
+    # the released area 0.2 m x 0.2 m (the Gaussian's mass beyond 4 bandwidths is 3e-5; volumes
+    # are float32: 1e-3 is generous), and matches mpmjax.height_profile via profile_at
+    (prof,) = _panels(fig, "profiles")
+    curves = [ln for ln in prof.lines if ln.get_label().startswith("t = ")]
+    assert len(curves) >= 3 and curves[0].get_label() == "t = 0 s" and curves[-1].get_label() == "t = 0.5 s"
+    for ln in curves:
+        xp, hp = (np.asarray(a, float) for a in ln.get_data())
+        assert xp[0] <= -0.08 + 1e-9 and xp[-1] >= 2.08 - 1e-9
+        assert np.trapezoid(hp, xp) == pytest.approx(0.04, rel=1e-3)
+    xk, hk = plotting.profile_at(res, -1, method="kernel", x_m=np.asarray(curves[-1].get_xdata()))
+    np.testing.assert_allclose(curves[-1].get_ydata(), hk, rtol=1e-4, atol=1e-7)
+    assert prof.get_ylabel() == "thickness [m]" and prof.get_xlabel() == "x [m]"
+    # runout against time: summary.json's series, the final value written on the panel
+    (axr,) = _panels(fig, "runout")
+    t, front = axr.lines[0].get_data()
+    np.testing.assert_allclose(front, summary["runout_m"])
+    assert f"final {summary['final_runout_m']:.3f} m" in [x.get_text() for x in axr.texts]
+    assert f"final runout {summary['final_runout_m']:.3f} m" in axr.get_title(loc="left")
+    assert "domain wall at 2 m" in axr.get_title(loc="left")
+    assert axr.yaxis.get_major_formatter().get_useOffset() is False
+    # the viscosity colour bar says how its range was chosen
+    assert any("log scale" in a.get_ylabel() and "at the top" in a.get_ylabel() for a in fig.axes)
+    # a Bingham result (no lambda dataset) has no λ panel
+    bingham = {**res, "frames": {k: v for k, v in fr.items() if k != "lambda"}}
+    assert not _panels(plotting.result_figure(bingham, summary), "lambda")
+    # warnings are on the page
+    fig = plotting.result_figure(res, {**summary, "warnings": ["bodies[0] is thin", "another"]})
+    (axw,) = _panels(fig, "warnings")
+    assert "2 warning(s)" in axw.texts[0].get_text() and "bodies[0] is thin" in axw.texts[0].get_text()
+
+
+def test_viscosity_norm_keeps_contrast_when_most_material_is_at_mu_max():
+    rng = np.random.default_rng(0)
+    # 95 % at mu_max = 5000 Pa s, 5 % flowing between 0.1 and 1000 Pa s, one stray particle at 1e-6
+    mu = np.concatenate([np.full(1900, 5000.0), 10 ** rng.uniform(-1, 3, 100), [1e-6]])
+    norm, note = plotting.viscosity_norm(mu)
+    assert norm.vmax == pytest.approx(5000.0)
+    # the flowing material's 4 decades are shown (the 2nd percentile of the 100 flowing values)...
+    assert np.log10(norm.vmax / norm.vmin) >= 4.0 and norm.vmin < 0.2
+    # ... but not the stray particle's 9 (a min-max scale would spend 9.7 decades on it)
+    assert norm.vmin > 1e-3
+    assert "95 % at the top" in note and "below the range" in note
+    # everything at mu_max: one decade below it
+    norm, note = plotting.viscosity_norm(np.full(50, 5000.0))
+    assert np.log10(norm.vmax / norm.vmin) == pytest.approx(1.0) and "100 % at the top" in note
+    # a narrow spread is widened to one decade, without clipping anything
+    norm, note = plotting.viscosity_norm(np.array([100.0, 150.0, 200.0]))
+    assert np.log10(norm.vmax / norm.vmin) == pytest.approx(1.0) and "below" not in note
+
+
+def test_result_report_3d_side_view_and_plan_thickness():
+    res = _result_3d()
+    summary = {"times_s": [0.0, 1.0], "runout_m": [0.38, 0.58], "final_runout_m": 0.58, "runout_wall_m": 0.9}
+    fig = plotting.result_figure(res, summary)
+    (side,) = _panels(fig, "side")
+    x1 = res["frames"]["x_m"][1]
+    np.testing.assert_array_equal(np.asarray(side.collections[0].get_offsets()), x1[:, [0, 2]])
+    assert side.get_ylabel() == "z [m]" and not _panels(fig, "lambda")
+    # thickness per 0.2 m bin along x, largest across y: frame 0 holds 0.1 m in the bins at
+    # 0.1-0.3 m (x centre 0.2 m; edges at 0, 0.2, ..: bins 0 and 1 take 4 particles each)
+    (prof,) = _panels(fig, "profiles")
+    curves = [ln for ln in prof.lines if ln.get_label().startswith("t = ")]
+    xc, h0 = (np.asarray(a) for a in curves[0].get_data())
+    np.testing.assert_allclose(xc, [0.1, 0.3, 0.5, 0.7, 0.9])
+    np.testing.assert_allclose(h0, [0.1, 0.1, 0, 0, 0], atol=1e-9)
+    _, h1 = curves[-1].get_data()
+    np.testing.assert_allclose(h1, [0.05, 0.05, 0.1, 0, 0], atol=1e-9)
