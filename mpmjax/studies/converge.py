@@ -431,9 +431,10 @@ def run_converge(
     shapes=SHAPES,
     volumes=("none", "jbar"),
     fresh: bool = False,
+    base: dict | None = None,
     log=None,
 ) -> dict:
-    """Run the sweep; write ``OUT/bench/converge.json`` (after every run), ``OUT/img/converge.png``
+    """Run the sweep (``base``: scene overrides applied to every run, e.g. another default shape); write ``OUT/bench/converge.json`` (after every run), ``OUT/img/converge.png``
     and ``OUT/bench/converge.md``.  Returns the JSON document."""
     if log is None:
 
@@ -480,11 +481,11 @@ def run_converge(
             coarsest = CI["coarsest"][case]
             time_ov = {"time.t_end_s": CI["t_end"][case], "time.n_frames": 1}
         hs = [coarsest / 2**i for i in range(n_levels)]
-        base = _config(case, {})
+        cfg0 = _config(case, dict(base or {}))
         defaults = {
-            "ppc": base["numerics.ppc"],
-            "shape": base["numerics.shape"],
-            "volume": base["numerics.volume_averaging"],
+            "ppc": cfg0["numerics.ppc"],
+            "shape": cfg0["numerics.shape"],
+            "volume": cfg0["numerics.volume_averaging"],
         }
         settings = series_settings(shapes, ppcs, volumes, defaults)
         desc = {
@@ -492,12 +493,12 @@ def run_converge(
             "slump": "Bingham slump to rest (tau_y 82 Pa), against the exact static profile",
             "water": "water column (Cruchaga), front at 0.15 s",
         }[case]
-        crow = {"description": desc, "levels_m": hs, "defaults": defaults, "time": time_ov, "rows": []}
+        crow = {"description": desc, "levels_m": hs, "defaults": defaults, "base": base or {}, "time": time_ov, "rows": []}
         doc["cases"][case] = crow
         log(f"\n{case}: {desc}; h = {', '.join(format(h, 'g') for h in hs)} m; {len(settings)} series")
         for name, ov in settings:
             for i, h in enumerate(hs):
-                overrides = {**time_ov, **ov, "domain.cell_size_m": h}
+                overrides = {**(base or {}), **time_ov, **ov, "domain.cell_size_m": h}
                 key = (case, json.dumps(overrides, sort_keys=True))
                 if key in old and old[key].get("status") in ("ok", "failed", "rejected"):
                     rec = dict(old[key], reused=True)
@@ -534,6 +535,13 @@ def add_arguments(p) -> None:
     p.add_argument("--volume", nargs="+", choices=("none", "jbar"), default=["none", "jbar"], dest="volumes")
     p.add_argument("--out", default="converge", help="output folder: writes OUT/bench/converge.* and OUT/img/")
     p.add_argument("--fresh", action="store_true", help="rerun every case (default: reuse finished runs in the JSON)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="scene override for every run (e.g. numerics.shape=quadratic_bm: the series then vary around it)",
+    )
 
 
 def cmd_converge(args) -> int:
@@ -550,9 +558,23 @@ def cmd_converge(args) -> int:
     except OSError as e:
         print(f"mpmjax: error: --out {args.out} is invalid: {e}", file=sys.stderr)
         return USAGE_ERROR
+    base = {}
+    for item in args.set:
+        key, sep, val = item.partition("=")
+        if not sep or not key.startswith("numerics."):
+            print(f"mpmjax: error: --set {item} is invalid: allowed: numerics.KEY=VALUE", file=sys.stderr)
+            return USAGE_ERROR
+        base[key] = int(val) if val.isdigit() else val
+    for case in args.cases:
+        try:
+            _config(case, base)
+        except SceneError as e:
+            print(f"mpmjax: error: --set: {e}", file=sys.stderr)
+            return USAGE_ERROR
     try:
         run_converge(
             tuple(args.cases),
+            base=base,
             size=args.size,
             out=args.out,
             levels=args.levels,
