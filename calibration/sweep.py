@@ -7,8 +7,13 @@ compilation); with several devices the batch axis is sharded across them with
 ``jax.sharding`` (a 1-D mesh named ``batch``), so the same code runs on many GPUs or, under
 ``jax.distributed``, many hosts.  Each case gives:
 
-* ``runout_m`` (per saved frame) and ``final_runout_m``: ``mpmjax.runout`` (the farthest
-  active particle plus half a particle spacing, minus the scene's runout origin) [m];
+* ``runout_m`` (per saved frame) and ``final_runout_m``: the headline runout of
+  ``mpmjax run`` (docs/output.md "Runout") [m]: in 2D the free-surface front
+  (``mpmjax.free_surface_front``: thickness >= 10 % of the frame's thickest point, kernel
+  bandwidth one cell); in 3D, and for a vertical runout axis, the farthest particle (the
+  plan-view front of summary.json is computed on the host, not inside the batch);
+* ``runout_farthest_particle_m``, ``final_runout_farthest_particle_m``: ``mpmjax.runout``
+  (the farthest active particle plus half a particle spacing), minus the runout origin [m];
 * ``kinetic_energy_J`` per frame [J; 2D: J per metre of depth] and ``time_to_rest_s``
   (``mpmjax.time_to_rest``; NaN if the material has not come to rest);
 * ``n_lost`` particles and the final height profile on ``profile_x_m``.
@@ -120,6 +125,7 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
     info = setup.info
     x_prof = np.linspace(sc.lo[0], sc.hi[0], 101) if profile_x_m is None else np.asarray(profile_x_m, float)
     axis, origin, spacing = info["runout_axis"], info["runout_origin_m"], info["particle_spacing_m"]
+    on_profile = sc.dim == 2 and axis == 0  # the free-surface front (2D, horizontal runout axis)
     dt = jnp.dtype(sc.dtype)
     xg = jnp.asarray(x_prof, dt)
 
@@ -130,10 +136,18 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
         xs = jnp.concatenate([st.x[None], fr.x])
         vs = jnp.concatenate([st.v[None], fr.v])
         act = jnp.concatenate([st.active[None], fr.active])
-        fronts = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
+        far = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
+        far = jnp.where(jnp.any(act, axis=-1), far, 0.0)  # no active material yet: at the origin
+        if on_profile:
+            fronts = jax.vmap(
+                lambda x, a: mpmjax.free_surface_front(x, st.vol0, a, bandwidth=sc.h, x_lo=sc.lo[0], x_hi=sc.hi[0])
+            )(xs, act)
+            fronts = jnp.where(jnp.any(act, axis=-1), fronts - origin, 0.0)
+        else:
+            fronts = far
         ke = mpmjax.kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
         prof = mpmjax.height_profile(final.x, st.vol0, final.active, xg, bandwidth=sc.h) if sc.dim == 2 else jnp.zeros_like(xg)
-        return fronts, ke, final.n_lost, prof
+        return fronts, far, ke, final.n_lost, prof
 
     n_dev = jax.device_count()
     n = len(cases)
@@ -170,7 +184,7 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
             )
             sys.stderr.flush()
     wall = time.perf_counter() - t0
-    fronts, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(4))
+    fronts, far, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(5))
     times = np.arange(sc.n_frames + 1) * sc.steps_per_frame * sc.dt
     rest = np.asarray([mpmjax.time_to_rest(times, k) for k in ke])
     return {
@@ -181,6 +195,9 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
         "times_s": times,
         "runout_m": fronts,
         "final_runout_m": fronts[:, -1],
+        "runout_definition": "free-surface front (docs/output.md 'Runout')" if on_profile else "farthest particle",
+        "runout_farthest_particle_m": far,
+        "final_runout_farthest_particle_m": far[:, -1],
         "kinetic_energy_J": ke,
         "time_to_rest_s": rest,
         "n_lost": lost,
@@ -240,6 +257,8 @@ def write_sweep(res: dict, out) -> list[Path]:
         "time_to_rest_s": "s",
         "times_s": "s",
         "runout_m": "m",
+        "runout_farthest_particle_m": "m",
+        "final_runout_farthest_particle_m": "m",
         "kinetic_energy_J": "J (2D: J per metre of depth)",
         "profile_x_m": "m",
         "profile_h_m": "m",
