@@ -83,7 +83,15 @@ _HEAD: dict[str, Key] = {
     "numerics.flip_blend": Key(
         float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0
     ),
-    "numerics.ppc": Key(int, 2, "-", "Particles per cell per axis for seeded bodies.", lo=1, hi=8),
+    "numerics.ppc": Key(
+        int,
+        2,
+        "-",
+        "Particles per cell per axis for seeded bodies. Use 2 or more for yield-stress and thixotropic material: "
+        "ppc 1 stops them 10-30 % short at every cell size (docs/validation.md, convergence benchmark).",
+        lo=1,
+        hi=8,
+    ),
     "numerics.cfl": Key(
         float, 0.4, "-", "Safety factor f of the wave-speed limit dt = f h / (c + |v|).", lo=0.0, lo_open=True, hi=1.0
     ),
@@ -139,7 +147,8 @@ _HEAD: dict[str, Key] = {
         "Volumetric anti-locking (off by default): jbar replaces each particle's volume change per step by its "
         "mass-weighted average through the grid (F-bar / J-bar, Zhao, Jiang & Choo 2023), so a stiff (nearly "
         "incompressible) material flows instead of locking; it also calms J in a deposit's bottom row, not the "
-        "J noise above it. About 30 % more per step; see docs/validation.md.",
+        "J noise above it. About 30 % more per step. Experimental: at fine grids it runs too far (water column "
+        "+55 % at h = 2.5 mm, Bingham slump +7 % at 32 cells; docs/validation.md, convergence benchmark).",
         choices=("none", "jbar"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),

@@ -526,6 +526,22 @@ def run_converge(
     return doc
 
 
+def report(out: Path | str = "converge", log=None) -> dict:
+    """Re-analyse ``OUT/bench/converge.json`` as it stands (an interrupted or partial sweep
+    included) and rewrite its tables and plot, without running anything."""
+    out = Path(out)
+    jpath = out / "bench" / "converge.json"
+    doc = json.loads(jpath.read_text())
+    doc["analysis"] = analyse(doc)
+    doc["markdown"] = markdown(doc)
+    atomic_write_text(jpath, json.dumps(_jsonable(doc), indent=1))
+    atomic_write_text(out / "bench" / "converge.md", doc["markdown"] + "\n")
+    (out / "img").mkdir(parents=True, exist_ok=True)
+    plot(doc, out / "img" / "converge.png")
+    (log or print)(doc["markdown"])
+    return doc
+
+
 def add_arguments(p) -> None:
     p.add_argument("--size", choices=("ci", "full"), default="full", help="ci: tiny (seconds); full: the measurement")
     p.add_argument("--case", nargs="+", choices=sorted(CASES), default=["lab", "slump", "water"], dest="cases")
@@ -536,6 +552,9 @@ def add_arguments(p) -> None:
     p.add_argument("--out", default="converge", help="output folder: writes OUT/bench/converge.* and OUT/img/")
     p.add_argument("--fresh", action="store_true", help="rerun every case (default: reuse finished runs in the JSON)")
     p.add_argument(
+        "--report-only", action="store_true", help="re-analyse OUT/bench/converge.json as it stands; run nothing"
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],
@@ -545,6 +564,13 @@ def add_arguments(p) -> None:
 
 
 def cmd_converge(args) -> int:
+    if args.report_only:
+        try:
+            report(args.out)
+        except (OSError, ValueError, KeyError) as e:
+            print(f"mpmjax: error: --report-only: {Path(args.out) / 'bench' / 'converge.json'} cannot be read: {e}", file=sys.stderr)
+            return USAGE_ERROR
+        return 0
     if args.levels is not None and not 2 <= args.levels <= 6:
         print(f"mpmjax: error: --levels = {args.levels} is invalid: allowed range 2..6", file=sys.stderr)
         return USAGE_ERROR
