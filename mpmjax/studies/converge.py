@@ -45,6 +45,7 @@ without rerunning.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -175,7 +176,7 @@ def slump_errors(rec: dict, h: float) -> None:
     x_f, k = _slump_exact(rec.get("area_m2", 0.04))
     xs = np.arange(0.0, 1.0 + 0.5 * PROFILE_STATION, PROFILE_STATION)
     hs = np.asarray(rec["profile_m"])
-    ex = exact_slump_profile(xs, x_f, k, PROFILE_BANDWIDTH["slump"])
+    ex = _exact_profile_on_stations(x_f, k)
     inner = (xs >= 0.2 * x_f) & (xs <= 0.9 * x_f)
     whole = xs <= 0.9 * x_f
     # the definition on the exact profile: smoothed with bandwidth h, last crossing of 10 % of its max
@@ -191,9 +192,16 @@ def slump_errors(rec: dict, h: float) -> None:
     )
 
 
+@functools.lru_cache(maxsize=8)
+def _exact_profile_on_stations(x_f: float, k: float) -> np.ndarray:
+    xs = np.arange(0.0, 1.0 + 0.5 * PROFILE_STATION, PROFILE_STATION)
+    return exact_slump_profile(xs, x_f, k, PROFILE_BANDWIDTH["slump"])
+
+
+@functools.lru_cache(maxsize=64)
 def _exact_front_by_definition(x_f: float, k: float, h: float) -> float:
     """``free_surface_front`` (bandwidth h, 10 % of the thickest point) of the exact slump."""
-    xs = np.linspace(0.0, 1.0, 4001)
+    xs = np.linspace(0.0, 1.0, 2001)
     prof = exact_slump_profile(xs, x_f, k, h)
     env = np.maximum.accumulate(prof[::-1])[::-1]
     thr = FRONT_FRACTION * prof.max()
