@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -366,7 +365,8 @@ def summary_lines(doc) -> list:
         if num is None:
             s += ", numerical not estimated)"
         else:
-            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {num['method'][k]})"
+            how = {"shift": "shift", "richardson": "Richardson estimate"}[num["method"][k]]
+            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how})"
         if k in doc["poorly_identified"]:
             s += "  POORLY IDENTIFIED"
         out.append(s)

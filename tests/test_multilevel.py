@@ -101,3 +101,26 @@ def test_calibrate_cli_bad_levels_exit_2_naming_the_option(tmp_path, capsys):
         err = capsys.readouterr().err
         assert needle in err and err.count("\n") == 1, (extra, err)
 
+
+
+def test_summary_names_the_method_the_extrapolate_and_the_poorly_identified():
+    """The printed summary (also the text box of fit_profiles.png) for three levels: mu0 converges
+    at first order (3, 3.5, 3.75 -> 4), lambda0 oscillates (no extrapolation, last shift)."""
+    from calibration.cli import summary_lines
+
+    num = numerical_uncertainty([0.04, 0.02, 0.01], {"mu0": [3.0, 3.5, 3.75], "lambda0": [1.0, 1.3, 1.1]})
+    assert num.std["mu0"] == pytest.approx(0.25) and num.std["lambda0"] == pytest.approx(0.2)
+    doc = {
+        "params": {"mu0": 3.75, "lambda0": 1.1},
+        "std": {"mu0": 0.2502, "lambda0": None},
+        "std_statistical": {"mu0": 0.01, "lambda0": None},
+        "std_numerical": num.std,
+        "units": {"mu0": "Pa s", "lambda0": "-"},
+        "poorly_identified": ["lambda0"],
+        "numerical_uncertainty": num.as_dict(),
+    }
+    text = "\n".join(summary_lines(doc))
+    assert "mu0 = 3.75 +- 0.25 [Pa s] (statistical 0.01, numerical 0.25 from the Richardson estimate)" in text
+    assert "lambda0 = 1.1 +- inf [-] (statistical inf, numerical 0.2 from the shift)  POORLY IDENTIFIED" in text
+    assert "Richardson: mu0 -> 4 (h -> 0, observed order 1.00)" in text
+    assert "Richardson: lambda0 not extrapolated: the differences between levels change sign" in text
