@@ -5,7 +5,9 @@
 * ``ProfileExperiment``, ``FlowCurveExperiment``, ``TransientExperiment``, ``joint_loss``
   (``calibration.experiments``; the last two: rheometer data, fitted with ``fit`` like profiles).
 * ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam, multi-start by ``vmap``.
-* ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability.
+* ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability;
+  ``numerical_uncertainty`` / ``combine``: the discretisation std from fits at several cell sizes.
+* ``fit_multilevel`` (``calibration.multilevel``): multi-fidelity fit, coarse cell size then finer ones.
 * ``sweep`` (``calibration.sweep``): a parameter grid as one ``vmap`` batch, sharded over devices.
 * the differentiable observables (height profile, smooth front, deposited volume), re-exported
   from ``mpmjax`` (``mpmjax._observables``), where the simulator's plots use them too.
@@ -16,28 +18,35 @@ from mpmjax import deposited_volume, gaussian_kernel, height_profile, particle_v
 from .data import DataError, Profile, load_profiles, write_profiles_csv
 from .experiments import FlowCurveExperiment, ProfileExperiment, TransientExperiment, joint_loss
 from .fit import FitResult, fit
+from .multilevel import MultilevelResult, experiments_at_cell_size, fit_multilevel
 from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
 from .sweep import sweep
-from .uncertainty import Uncertainty, gauss_newton
+from .uncertainty import NumericalUncertainty, Uncertainty, combine, gauss_newton, numerical_uncertainty
 
 __all__ = [
     "DEFAULT_BOUNDS",
     "DataError",
     "FitResult",
     "FlowCurveExperiment",
+    "MultilevelResult",
+    "NumericalUncertainty",
     "ParamSpec",
     "ParameterSet",
     "Profile",
     "ProfileExperiment",
     "TransientExperiment",
     "Uncertainty",
+    "combine",
     "deposited_volume",
+    "experiments_at_cell_size",
     "fit",
+    "fit_multilevel",
     "gauss_newton",
     "gaussian_kernel",
     "height_profile",
     "joint_loss",
     "load_profiles",
+    "numerical_uncertainty",
     "particle_volume",
     "smooth_front",
     "sweep",

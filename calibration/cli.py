@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -19,10 +18,10 @@ import mpmjax
 
 from .data import DataError, load_profiles
 from .experiments import FlowCurveExperiment, ProfileExperiment, frames_for
-from .fit import fit
+from .multilevel import check_levels, experiments_at_cell_size, fit_multilevel
 from .params import UNITS, ParameterSet
 from .sweep import FIELD_KEYS, parse_vary, sweep, write_sweep
-from .uncertainty import gauss_newton
+from .uncertainty import REL_STD_WARN
 
 USAGE_ERROR = 2
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
@@ -96,8 +95,40 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     p.add_argument("--runout-m", type=float, help="also fit a measured final runout [m]")
     p.add_argument("--runout-sigma-m", type=float, help="its standard deviation [m] (default 2 cells)")
     p.add_argument("--flow-curve", help="also fit rheometer flow-curve points: CSV with gamma_dot_1_s, tau_pa")
+    lv = p.add_mutually_exclusive_group()
+    lv.add_argument(
+        "--refine",
+        type=int,
+        default=0,
+        help=f"multi-fidelity: after the fit at the scene's cell size h, continue it at h/2, h/4, ... ({MAX_REFINE} "
+        "at most); the shift between levels is reported as the numerical std (default 0: one level, no numerical std)",
+    )
+    lv.add_argument(
+        "--levels",
+        metavar="H1,H2,...",
+        help="multi-fidelity: the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine)",
+    )
+    p.add_argument(
+        "--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)"
+    )
     p.add_argument("--out", default="calibration-out", help="output folder (default calibration-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+# --refine: at most this many halvings (each costs ~8x the previous level's run in 2D)
+MAX_REFINE = 3
+
+
+def _levels(args, h0):
+    """Cell sizes of the fit's levels [m], coarse to fine, from --levels / --refine."""
+    if args.levels is not None:
+        try:
+            return check_levels([v for v in args.levels.split(",") if v.strip()], "--levels")
+        except ValueError as e:
+            raise ValueError(f"{e} (got {args.levels!r})") from None
+    if not 0 <= args.refine <= MAX_REFINE:
+        raise ValueError(f"--refine = {args.refine}; allowed range: 0 .. {MAX_REFINE} (halvings of the cell size)")
+    return [h0 / 2**i for i in range(args.refine + 1)]
 
 
 def _load_flow_curve(path):
@@ -133,7 +164,17 @@ def calibrate(args) -> dict:
     for k, v in init.items():
         if k in FIELD_KEYS:
             overrides.append(f"{FIELD_KEYS[k]}={v!r}")  # validated as a scene value (range errors name the key)
-    cfg = mpmjax.load_scene(args.scene, overrides)
+    if args.refine_max_iter is not None and args.refine_max_iter < 1:
+        raise ValueError(f"--refine-max-iter = {args.refine_max_iter}; allowed range: integer >= 1")
+    levels = _levels(args, float(cfg0["domain.cell_size_m"]))
+    overrides = [o for o in overrides if o.split("=", 1)[0].strip() != "domain.cell_size_m"]
+    cfgs = []
+    for h in levels:
+        try:
+            cfgs.append(mpmjax.load_scene(args.scene, overrides + [f"domain.cell_size_m={h!r}"]))
+        except mpmjax.SceneError as e:
+            raise ValueError(f"--levels / --refine: cell size {h:g} m: {e}") from None
+    cfg = cfgs[0]
     setup = mpmjax.build(cfg)
     pset = ParameterSet.from_names(
         names,
@@ -142,59 +183,123 @@ def calibrate(args) -> dict:
         bounds=_kv(args.bounds, "--bounds", _bounds),
         transforms=_kv(args.transform, "--transform", _transform),
     )
-    exps = [
-        ProfileExperiment(
-            setup,
-            profiles,
-            bandwidth_m=args.bandwidth_m,
-            sigma_m=args.sigma_m,
-            runout_m=args.runout_m,
-            runout_sigma_m=args.runout_sigma_m,
-            name=Path(args.data).name,
-        )
-    ]
-    if args.flow_curve:
-        g, tau = _load_flow_curve(args.flow_curve)
-        exps.append(FlowCurveExperiment(setup.params.material, g, tau, name=Path(args.flow_curve).name))
-    out.mkdir(parents=True, exist_ok=True)
-    sc = setup.scene
-    log(
-        f"calibrate: scene {cfg['name']} ({sc.n_particles} particles, {sc.n_steps} steps of {sc.dt:.3g} s to "
-        f"t = {sc.t_end:g} s), {len(profiles)} profile(s) from {args.data}, fitting {', '.join(pset.free)} "
-        f"with {args.method}, {args.starts} start(s)"
-    )
+    # the observable is the same at every level: bandwidth and runout sigma fixed in metres
+    bandwidth_m = args.bandwidth_m if args.bandwidth_m is not None else levels[0]
+    runout_sigma_m = args.runout_sigma_m if args.runout_sigma_m is not None else 2 * levels[0]
+    flow = _load_flow_curve(args.flow_curve) if args.flow_curve else None
 
-    def progress(it, max_iter, losses, best, running):
+    def make(st):
+        exps = [
+            ProfileExperiment(
+                st,
+                profiles,
+                bandwidth_m=bandwidth_m,
+                sigma_m=args.sigma_m,
+                runout_m=args.runout_m,
+                runout_sigma_m=runout_sigma_m,
+                name=Path(args.data).name,
+            )
+        ]
+        if flow is not None:
+            exps.append(FlowCurveExperiment(st.params.material, *flow, name=Path(args.flow_curve).name))
+        return exps
+
+    build_at = experiments_at_cell_size(args.scene, overrides, make)
+
+    def make_experiments(h):
+        return make(setup) if h == levels[0] else build_at(h)
+
+    out.mkdir(parents=True, exist_ok=True)
+
+    def on_level(i, h, exps):
+        sc = exps[0].setup.scene
+        log(
+            f"calibrate: level {i + 1}/{len(levels)}: scene {cfg['name']} at h = {h:g} m ({sc.n_particles} particles, "
+            f"{sc.n_steps} steps of {sc.dt:.3g} s to t = {sc.t_end:g} s), {len(profiles)} profile(s) from "
+            f"{args.data}, fitting {', '.join(pset.free)} with {args.method}"
+            + (f", {args.starts} start(s)" if i == 0 else ", from the previous level's result")
+        )
+
+    def progress(level, h, it, max_iter, losses, best, running):
         if not args.quiet:
             vals = ", ".join(f"{k}={v:.4g}" for k, v in best.items())
-            print(f"calibrate: iteration {it}/{max_iter} loss {float(np.min(losses)):.4e} {vals}", file=sys.stderr)
+            lv = f" level {level + 1}/{len(levels)}" if len(levels) > 1 else ""
+            print(f"calibrate:{lv} iteration {it}/{max_iter} loss {float(np.min(losses)):.4e} {vals}", file=sys.stderr)
         mpmjax.atomic_write_text(
             out / "fit_progress.json",
-            json.dumps({"iteration": it, "loss": float(np.min(losses)), "params": best, "complete": False}, indent=1),
+            json.dumps(
+                {"level": level, "cell_size_m": h, "iteration": it, "loss": float(np.min(losses)), "params": best,
+                 "complete": False},
+                indent=1,
+            ),
         )
 
     t0 = time.perf_counter()
-    res = fit(
-        exps,
+    ml = fit_multilevel(
+        make_experiments,
         pset,
-        method=args.method,
+        levels,
         max_iter=args.max_iter,
+        refine_max_iter=args.refine_max_iter,
+        n_starts=args.starts,
+        progress=progress,
+        on_level=on_level,
+        method=args.method,
         learning_rate=args.learning_rate,
         rtol=args.rtol,
         patience=args.patience,
-        n_starts=args.starts,
         seed=args.seed,
-        progress=progress,
         gradient=args.gradient,
     )
-    unc = gauss_newton(exps, pset, res.params)
+    res, unc, exps, comb = ml.result, ml.uncertainty, ml.experiments, ml.combined
     wall = time.perf_counter() - t0
-    for w in unc.warnings:
+    warnings = list(unc.warnings)
+    for k in comb["poorly_identified"]:
+        if k not in unc.poorly_identified:
+            warnings.append(
+                f"{k} is poorly identified: its total relative standard deviation {comb['rel_std'][k]:.3g} exceeds "
+                f"{REL_STD_WARN:g} (numerical {comb['std_numerical'][k]:.3g}, "
+                f"statistical {comb['std_statistical'][k]:.3g})"
+            )
+    if ml.numerical is None:
+        warnings.append(
+            "numerical (discretisation) uncertainty not estimated: one level; the std is statistical only and "
+            "misses the grid's resolution bias (rerun with --refine 1 or --levels)"
+        )
+    for w in warnings:
         log(f"calibrate: warning: {w}")
+    finest = f"domain.cell_size_m={levels[-1]!r}"
     doc = {
         "params": res.params,
-        "std": {k: (float(s) if math.isfinite(s) else None) for k, s in zip(unc.names, unc.std, strict=True)},
-        "loss_initial": res.loss_initial,
+        "std": comb["std"],
+        "std_statistical": comb["std_statistical"],
+        "std_numerical": comb["std_numerical"],
+        "rel_std": comb["rel_std"],
+        "poorly_identified": comb["poorly_identified"],
+        "std_definition": (
+            "std = sqrt(std_statistical^2 + std_numerical^2); std_statistical: Gauss-Newton at the finest level; "
+            "std_numerical: |shift| of the fitted value between the last two levels, or with three levels where "
+            "the observed order allows, |finest - Richardson extrapolate| (numerical_uncertainty.method); null "
+            "with one level"
+        ),
+        "numerical_uncertainty": None if ml.numerical is None else ml.numerical.as_dict(),
+        "levels": [
+            {
+                "cell_size_m": lv.cell_size_m,
+                "n_particles": lv.n_particles,
+                "n_steps": lv.n_steps,
+                "params": lv.result.params,
+                "loss_initial": lv.result.loss_initial,
+                "loss_final": lv.result.loss_final,
+                "iterations": lv.result.iterations,
+                "converged": bool(lv.result.converged),
+                "stop_reason": lv.result.reason,
+                "wall_s": lv.result.wall_s,
+                "loss_history": [float(v) for v in lv.result.history.min(axis=1)],
+            }
+            for lv in ml.levels
+        ],
+        "loss_initial": ml.levels[0].result.loss_initial,
         "loss_final": res.loss_final,
         "iterations": res.iterations,
         "wall_s": wall,
@@ -204,18 +309,21 @@ def calibrate(args) -> dict:
         "initial": {k: pset.specs[k].init for k in pset.free},
         "fixed": {k: s.init for k, s in pset.specs.items() if s.fixed},
         "specs": pset.bounds_table(),
-        "uncertainty": unc.as_dict(),
+        "uncertainty": {**unc.as_dict(), "warnings": warnings},
         "loss_definition": "sum over experiments of weight * mean(((model - data) / sigma)^2), dimensionless",
         "loss_history": [float(v) for v in res.history.min(axis=1)],
         "method": args.method,
         "gradient": res.gradient,
-        "starts": res.starts,
-        "finals": res.finals,
-        "final_losses": [float(v) for v in res.final_losses],
-        "best_start": res.best_start,
+        "starts": ml.levels[0].result.starts,
+        "finals": ml.levels[0].result.finals,
+        "final_losses": [float(v) for v in ml.levels[0].result.final_losses],
+        "best_start": ml.levels[0].result.best_start,
         "compile_s": res.compile_s,
         "scene": cfg["name"],
-        "scene_overrides": overrides + [f"{FIELD_KEYS[k]}={v!r}" for k, v in res.params.items() if k in FIELD_KEYS],
+        "scene_overrides": overrides
+        + [finest]
+        + [f"{FIELD_KEYS[k]}={v!r}" for k, v in res.params.items() if k in FIELD_KEYS],
+        "bandwidth_m": bandwidth_m,
         "data": str(args.data),
         "profile_times_s": [p.t_s for p in profiles],
         "frame_time_offsets_s": list(exps[0].time_offsets_s),
@@ -224,25 +332,61 @@ def calibrate(args) -> dict:
     }
     mpmjax.atomic_write_text(out / "fit.json", json.dumps(doc, indent=1))
     (out / "fit_progress.json").unlink(missing_ok=True)
-    _plots(out, exps[0], pset, res, profiles)
-    log(
-        f"calibrate: loss {res.loss_initial:.4g} -> {res.loss_final:.4g} in {res.iterations} iterations "
-        f"({'converged: ' + res.reason if res.converged else 'not converged'}), {wall:.1f} s"
-    )
-    for k in unc.names:
-        s = doc["std"][k]
-        log(f"  {k} = {res.params[k]:.5g} +- {s if s is not None else float('inf'):.3g} [{UNITS.get(k, 'SI')}]")
+    _plots(out, exps[0], pset, ml, profiles, doc)
+    for lv in ml.levels:
+        r = lv.result
+        log(
+            f"calibrate: h = {lv.cell_size_m:g} m: loss {r.loss_initial:.4g} -> {r.loss_final:.4g} in {r.iterations} "
+            f"iterations ({'converged: ' + r.reason if r.converged else 'not converged'}), "
+            + ", ".join(f"{k} = {v:.5g}" for k, v in r.params.items())
+        )
+    log(f"calibrate: {wall:.1f} s; at h = {levels[-1]:g} m:")
+    for line in summary_lines(doc):
+        log(line)
     log(f"wrote {out / 'fit.json'}, {out / 'fit_profiles.png'}, {out / 'loss_history.png'}")
     return doc
 
 
-def _plots(out, exp, pset, res, profiles):
+def _fmt(v):
+    return "inf" if v is None else f"{v:.3g}"
+
+
+def summary_lines(doc) -> list:
+    """The fitted values with total, statistical and numerical std, the Richardson
+    extrapolates and the poorly identified names: the printed summary (also the text of
+    fit_profiles.png)."""
+    num = doc.get("numerical_uncertainty")
+    out = []
+    for k, v in doc["params"].items():
+        s = (
+            f"  {k} = {v:.5g} +- {_fmt(doc['std'][k])} [{doc['units'].get(k, 'SI')}] "
+            f"(statistical {_fmt(doc['std_statistical'][k])}"
+        )
+        if num is None:
+            s += ", numerical not estimated)"
+        else:
+            how = {"shift": "shift", "richardson": "Richardson estimate"}[num["method"][k]]
+            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how})"
+        if k in doc["poorly_identified"]:
+            s += "  POORLY IDENTIFIED"
+        out.append(s)
+    if num is not None:
+        for k, r in num["richardson"].items():
+            if r["extrapolated"] is not None:
+                out.append(f"  Richardson: {k} -> {r['extrapolated']:.5g} (h -> 0, observed order {r['order']:.2f})")
+            else:
+                out.append(f"  Richardson: {k} not extrapolated: {r['why_not']}")
+    return out
+
+
+def _plots(out, exp, pset, ml, profiles, doc):
     # matplotlib only when plots are written (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    res = ml.result
     init = {k: pset.specs[k].init for k in pset.free}
     h_init = [np.asarray(h) for h in exp.model_profiles(pset.values(init))]
     h_fit = [np.asarray(h) for h in exp.model_profiles(pset.values(res.params))]
@@ -259,17 +403,28 @@ def _plots(out, exp, pset, res, profiles):
         ax.plot(p.x_m, h_init[i], ":", color=c, lw=1, label=f"initial guess {lab}" if i == 0 else None)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("height h [m]")
-    ax.set_title(", ".join(f"{k} = {v:.4g}" for k, v in res.params.items()), fontsize=9)
+    hs = " -> ".join(f"{lv.cell_size_m:g}" for lv in ml.levels)
+    ax.set_title(f"fitted at h = {hs} m: value +- total std (statistical, numerical)", fontsize=9)
+    ax.text(
+        0.99, 0.97, "\n".join(ln.strip() for ln in summary_lines(doc)), transform=ax.transAxes, ha="right", va="top",
+        fontsize=6.5, family="monospace", bbox={"boxstyle": "round", "fc": "white", "alpha": 0.85},
+    )
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(out / "fit_profiles.png", dpi=110)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(5, 3.4))
-    ax.semilogy(np.arange(res.history.shape[0]), res.history, lw=1)
-    ax.set_xlabel("iteration")
+    it0 = 0
+    for lv in ml.levels:
+        hist = lv.result.history
+        ax.semilogy(it0 + np.arange(hist.shape[0]), hist, lw=1, label=f"h = {lv.cell_size_m:g} m")
+        it0 += hist.shape[0] - 1
+    ax.set_xlabel("iteration (all levels)")
     ax.set_ylabel("loss (dimensionless)")
-    ax.set_title(f"loss {res.loss_initial:.3g} -> {res.loss_final:.3g}")
+    ax.set_title(f"loss {ml.levels[0].result.loss_initial:.3g} -> {res.loss_final:.3g}")
+    if len(ml.levels) > 1:
+        ax.legend(fontsize=7)
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     fig.savefig(out / "loss_history.png", dpi=110)

@@ -21,10 +21,32 @@ parameters the data constrain least, reported as a power law prod theta_k^{a_k}
 F_log above 1e8 (numerically unidentifiable).  The approximation is local (linearised
 model at the optimum) and assumes uncorrelated Gaussian errors; for strongly
 non-linear or multi-modal cases, compare multi-start fits.
+
+Numerical (discretisation) uncertainty: the residuals of a fit at a coarse grid are mostly
+the grid's resolution error, which the Fisher matrix above does not see.  Fitting the same
+data at several cell sizes h_1 > h_2 > ... > h_L (``calibration.multilevel``) measures it:
+:func:`numerical_uncertainty` turns the fitted values per level into a numerical standard
+deviation of the finest level's value, and :func:`combine` adds it to the statistical one,
+std = sqrt(std_statistical^2 + std_numerical^2).
+
+* Two levels: std_numerical = |theta_L - theta_{L-1}|, the shift between the last two
+  levels.  If the fitted value converges as theta(h) = theta_inf + C h^p with p >= 1 and
+  h_{L-1}/h_L = 2, the finest level's remaining error is shift / (2^p - 1) <= shift.
+* Three or more levels: the last three give an observed order p per parameter (solved from
+  (theta_1 - theta_2)/(theta_2 - theta_3) = (h_1^p - h_2^p)/(h_2^p - h_3^p)).  Where the two
+  differences have the same sign and p lies in ``order_range`` (default 0.5 .. 6), the
+  value is Richardson-extrapolated to theta_inf and std_numerical = |theta_L - theta_inf|
+  (for p < 1 this is larger than the last shift).  Otherwise nothing is extrapolated, the
+  reason is recorded, and std_numerical falls back to the last shift.
+
+A parameter is *poorly identified* when its statistical relative std exceeds ``rel_std_warn``
+(or is not finite), or when its total relative std does: std / |theta| > 0.5 means the 2 sigma
+interval reaches zero, i.e. it is wider than the value itself.
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -33,7 +55,12 @@ import numpy as np
 
 from .experiments import joint_residuals
 
-__all__ = ["Uncertainty", "gauss_newton"]
+__all__ = ["NumericalUncertainty", "Uncertainty", "combine", "gauss_newton", "numerical_uncertainty"]
+
+# relative std above which a parameter is named poorly identified (statistical or total)
+REL_STD_WARN = 0.5
+# observed convergence orders accepted for Richardson extrapolation
+ORDER_RANGE = (0.5, 6.0)
 
 
 class Uncertainty(NamedTuple):
@@ -41,7 +68,8 @@ class Uncertainty(NamedTuple):
     deviations [SI]; rel_std: std/|theta|; cov: covariance; corr: correlation matrix;
     fisher: F; noise_scale: s_e per experiment (1 when sigma is known); weakest: the least
     determined combination {name: exponent}; condition: condition number of F_log;
-    warnings: human-readable warnings."""
+    warnings: human-readable warnings; poorly_identified: names whose relative std exceeds
+    the threshold (or is not finite)."""
 
     names: tuple
     theta: np.ndarray
@@ -54,6 +82,7 @@ class Uncertainty(NamedTuple):
     weakest: dict
     condition: float
     warnings: list
+    poorly_identified: tuple = ()
 
     def as_dict(self):
         n = self.names
@@ -65,10 +94,13 @@ class Uncertainty(NamedTuple):
             "weakest_combination": self.weakest,
             "condition_number_log": float(self.condition),
             "warnings": list(self.warnings),
+            "poorly_identified": list(self.poorly_identified),
         }
 
 
-def gauss_newton(experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = 0.5) -> Uncertainty:
+def gauss_newton(
+    experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN
+) -> Uncertainty:
     """Gauss-Newton uncertainty of the free parameters of ``pset`` at ``theta`` (name ->
     value, e.g. ``FitResult.params``).  See the module docstring."""
     names = pset.free
@@ -122,9 +154,9 @@ def gauss_newton(experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel
                     f"{names[i]} and {names[j]} are strongly correlated (r = {corr[i, j]:+.3f}): the data constrain "
                     f"a combination of them rather than each one"
                 )
-    for k, r in zip(names, rel, strict=True):
-        if not np.isfinite(r) or r > rel_std_warn:
-            warns.append(f"{k} is poorly identified: relative standard deviation {r:.3g}")
+    poorly = tuple(k for k, r in zip(names, rel, strict=True) if not np.isfinite(r) or r > rel_std_warn)
+    for k in poorly:
+        warns.append(f"{k} is poorly identified: relative standard deviation {rel[names.index(k)]:.3g}")
     if cond > 1e8:
         warns.append(
             f"the relative Fisher matrix has condition number {cond:.3g} (> 1e8): not identifiable numerically"
@@ -132,4 +164,110 @@ def gauss_newton(experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel
     if warns:
         combo = " * ".join(f"{k}^{a:g}" for k, a in weakest.items())
         warns.append(f"least determined combination: {combo} (relative std {1 / np.sqrt(max(w[0], 1e-300)):.3g})")
-    return Uncertainty(tuple(names), thv, std, rel, cov, corr, F, scales, weakest, cond, warns)
+    return Uncertainty(tuple(names), thv, std, rel, cov, corr, F, scales, weakest, cond, warns, poorly)
+
+
+class NumericalUncertainty(NamedTuple):
+    """Discretisation uncertainty of fitted values from fits at several cell sizes (module
+    docstring).  cell_sizes_m: the levels, coarse to fine; values: name -> fitted value per
+    level; std: name -> numerical std of the finest level's value; method: name -> "shift"
+    or "richardson"; order: name -> observed order p (None where not available);
+    extrapolated: name -> Richardson value theta_inf (None where not extrapolated); reason:
+    name -> why not extrapolated (None where it was)."""
+
+    cell_sizes_m: tuple
+    values: dict
+    std: dict
+    method: dict
+    order: dict
+    extrapolated: dict
+    reason: dict
+
+    def as_dict(self):
+        return {
+            "cell_sizes_m": list(self.cell_sizes_m),
+            "values_per_level": {k: list(v) for k, v in self.values.items()},
+            "method": dict(self.method),
+            "richardson": {
+                k: {"extrapolated": self.extrapolated[k], "order": self.order[k], "why_not": self.reason[k]}
+                for k in self.values
+            },
+        }
+
+
+def _observed_order(h, d1, d2, lo, hi):
+    """p with (h1^p - h2^p)/(h2^p - h3^p) = d1/d2 in [lo, hi] (bisection; the ratio grows
+    with p for h1 > h2 > h3), or None with the reason."""
+    q = d1 / d2
+
+    def g(p):
+        return (h[0] ** p - h[1] ** p) / (h[1] ** p - h[2] ** p)
+
+    if q <= 0:
+        return None, "the differences between levels change sign (not in the asymptotic range)"
+    if not g(lo) <= q <= g(hi):
+        p_r = math.log(q) / math.log(h[1] / h[2]) if h[0] / h[1] == h[1] / h[2] else None
+        shown = f"{p_r:.3g}" if p_r is not None else ("< " if q < g(lo) else "> ") + f"{lo if q < g(lo) else hi:g}"
+        return None, f"observed order {shown} is outside {lo:g} .. {hi:g}"
+    a, b = lo, hi
+    for _ in range(200):
+        m = 0.5 * (a + b)
+        a, b = (m, b) if g(m) < q else (a, m)
+    return 0.5 * (a + b), None
+
+
+def numerical_uncertainty(cell_sizes_m, values: dict, *, order_range=ORDER_RANGE) -> NumericalUncertainty:
+    """Numerical std of the finest level's fitted values (module docstring).
+
+    cell_sizes_m: the levels' cell sizes [m], strictly decreasing (at least two); values:
+    name -> sequence of the fitted value at each level."""
+    h = [float(x) for x in cell_sizes_m]
+    if len(h) < 2 or any(not (b < a) for a, b in zip(h, h[1:])) or h[-1] <= 0:
+        raise ValueError(f"cell sizes {h}: need at least two levels, strictly decreasing and > 0 [m]")
+    std, method, order, extra, reason = {}, {}, {}, {}, {}
+    for k, vs in values.items():
+        v = [float(x) for x in vs]
+        if len(v) != len(h):
+            raise ValueError(f"{k}: {len(v)} values for {len(h)} levels")
+        shift = abs(v[-1] - v[-2])
+        std[k], method[k], order[k], extra[k] = shift, "shift", None, None
+        if len(h) < 3:
+            reason[k] = "two levels give no observed order"
+            continue
+        d1, d2 = v[-3] - v[-2], v[-2] - v[-1]
+        if d1 == 0 or d2 == 0:
+            reason[k] = "no change between two levels: no observed order"
+            continue
+        p, why = _observed_order(h[-3:], d1, d2, *order_range)
+        reason[k] = why
+        if p is None:
+            continue
+        c = d2 / (h[-2] ** p - h[-1] ** p)
+        inf = v[-1] - c * h[-1] ** p
+        std[k], method[k], order[k], extra[k] = abs(v[-1] - inf), "richardson", p, inf
+    vals = {k: [float(x) for x in v] for k, v in values.items()}
+    return NumericalUncertainty(tuple(h), vals, std, method, order, extra, reason)
+
+
+def combine(unc: Uncertainty, numerical: NumericalUncertainty | None, *, rel_std_warn: float = REL_STD_WARN) -> dict:
+    """Statistical (``unc``, at the finest level) and numerical std combined per parameter:
+    {"std_statistical", "std_numerical", "std", "rel_std"}: name -> value (None where not
+    finite or not estimated), and "poorly_identified": the names flagged statistically
+    (``unc.poorly_identified``) or whose total relative std exceeds ``rel_std_warn``."""
+    stat = {k: float(s) for k, s in zip(unc.names, unc.std, strict=True)}
+    num = {k: (float(numerical.std[k]) if numerical is not None else None) for k in unc.names}
+    tot = {k: math.sqrt(stat[k] ** 2 + (num[k] or 0.0) ** 2) for k in unc.names}
+    th = dict(zip(unc.names, (float(t) for t in unc.theta), strict=True))
+    rel = {k: tot[k] / max(abs(th[k]), np.finfo(float).tiny) for k in unc.names}
+    poorly = [k for k in unc.names if k in unc.poorly_identified or not math.isfinite(rel[k]) or rel[k] > rel_std_warn]
+
+    def clean(d):
+        return {k: (v if v is not None and math.isfinite(v) else None) for k, v in d.items()}
+
+    return {
+        "std_statistical": clean(stat),
+        "std_numerical": clean(num) if numerical is not None else dict.fromkeys(unc.names),
+        "std": clean(tot),
+        "rel_std": clean(rel),
+        "poorly_identified": poorly,
+    }
