@@ -787,7 +787,7 @@ def _finish(out, setup, cfg, state, acc, advance, compile_s, base_summary, anima
         deposit_warning = (
             f"the final deposit is {summary['deposit_cells_across']:.1f} cells thick at its thickest point "
             f"(deposit_cells_across; {thick:.3g} m at domain.cell_size_m = {sc.h:g} m); the convergence benchmark "
-            f"needs >= {_metrics.DEPOSIT_CELLS_NEEDED} for a runout within 5 % (docs/validation.md, 'Convergence "
+            f"needs >= {_metrics.DEPOSIT_CELLS_NEEDED} for a runout within about 5 % (docs/validation.md, 'Convergence "
             f"benchmark'): set domain.cell_size_m <= {thick / _metrics.DEPOSIT_CELLS_NEEDED:.3g} m"
         )
         summary["warnings"] = list(summary.get("warnings", [])) + [deposit_warning]

@@ -503,6 +503,17 @@ def run_converge(
         }[case]
         crow = {"description": desc, "levels_m": hs, "defaults": defaults, "base": base or {}, "time": time_ov, "rows": []}
         doc["cases"][case] = crow
+        # finished runs of this case that this invocation does not repeat (a narrower --shapes or
+        # --ppc than last time) stay in the JSON, so that narrowing a rerun loses nothing
+        planned = {
+            json.dumps({**(base or {}), **time_ov, **ov, "domain.cell_size_m": h}, sort_keys=True)
+            for _, ov in settings
+            for h in hs
+        }
+        for (c, k), r in old.items():
+            h = r.get("overrides", {}).get("domain.cell_size_m")
+            if c == case and k not in planned and h in hs and r.get("series") is not None:
+                crow["rows"].append(dict(r, level=hs.index(h), reused=True))
         log(f"\n{case}: {desc}; h = {', '.join(format(h, 'g') for h in hs)} m; {len(settings)} series")
         for name, ov in settings:
             for i, h in enumerate(hs):
