@@ -649,8 +649,11 @@ class RunoutGauge(NamedTuple):
             x = np.asarray(x)
             vol = np.broadcast_to(np.asarray(vol0, x.dtype), a.shape)
             return float(_profile_max_2d(self.cell, self.lo[0], self.hi[0])(x, vol, a))
-        edges = [self.lo[k] + self.cell * np.arange(int(round((self.hi[k] - self.lo[k]) / self.cell)) + 1) for k in (0, 1)]
-        return float(thickness_map(np.asarray(x, float), vol0, a, edges[0], edges[1]).max())
+        return float(thickness_map(np.asarray(x, float), vol0, a, *self.plan_edges(0, 1)).max())
+
+    def plan_edges(self, *axes) -> list:
+        """Bin edges [m] of one cell along each of ``axes`` over the domain."""
+        return [self.lo[k] + self.cell * np.arange(int(round((self.hi[k] - self.lo[k]) / self.cell)) + 1) for k in axes]
 
     def definition(self) -> str:
         """One line for summary.json's ``runout_definition``."""
@@ -708,9 +711,7 @@ def plan_front(x, vol0, active, gauge: RunoutGauge) -> float:
     along = gauge.axis
     across = 1 - along  # the other horizontal axis (the vertical is the last)
     h = gauge.cell
-    edges = [
-        gauge.lo[k] + h * np.arange(int(round((gauge.hi[k] - gauge.lo[k]) / h)) + 1) for k in (along, across)
-    ]
+    edges = gauge.plan_edges(along, across)
     x = np.asarray(x, float)
     xs = np.stack([x[:, along], x[:, across], x[:, 2]], axis=1)
     th = thickness_map(xs, vol0, active, edges[0], edges[1])

@@ -64,7 +64,7 @@ from .._metrics import RunoutGauge
 from .._observables import FRONT_FRACTION, gaussian_kernel
 from .._schema import SceneError, load_scene, validate
 from .._shapes import STENCIL
-from .._simulate import simulate
+from .pareto import compile_final
 
 SHAPES = tuple(STENCIL)
 PROFILE_BANDWIDTH = {"lab": 0.02, "slump": 0.025, "water": 0.01}  # [m], fixed across levels
@@ -130,11 +130,7 @@ def run_one(case: str, overrides: dict, npz_path: Path | None = None) -> dict:
     except SceneError as e:
         return {"status": "rejected", "reason": str(e)}
     sc = s.scene
-    rec.update(n_particles=sc.n_particles, n_steps=sc.n_steps, dt_s=sc.dt)
-    f = jax.jit(lambda st, p: simulate(sc, st, p)[0])
-    w0, c0 = time.perf_counter(), time.process_time()
-    compiled = f.lower(s.state, s.params).compile()
-    rec.update(compile_wall_s=time.perf_counter() - w0, compile_cpu_s=time.process_time() - c0)
+    compiled = compile_final(s, rec)
     w0, c0 = time.perf_counter(), time.process_time()
     final = compiled(s.state, s.params)
     jax.block_until_ready(final.x)

@@ -166,6 +166,18 @@ def _settings(overrides: dict) -> dict:
     return {**DEFAULTS, **overrides}
 
 
+def compile_final(s, rec: dict):
+    """The run of the built setup ``s`` to its final state, compiled; records the particle and
+    step counts and the compile wall and CPU times in ``rec`` (shared with ``studies.converge``)."""
+    sc = s.scene
+    rec.update(n_particles=sc.n_particles, n_steps=sc.n_steps, dt_s=sc.dt)
+    f = jax.jit(lambda st, p: simulate(sc, st, p)[0])
+    w0, c0 = time.perf_counter(), time.process_time()
+    compiled = f.lower(s.state, s.params).compile()
+    rec.update(compile_wall_s=time.perf_counter() - w0, compile_cpu_s=time.process_time() - c0)
+    return compiled
+
+
 def run_case(overrides: dict, t_end: float, n_frames: int, edges) -> dict:
     """One run in this process: timings, runout [m], filled profile [m] on ``edges``, status."""
     ov = {**overrides, "time.t_end_s": t_end, "time.n_frames": n_frames}
@@ -175,11 +187,7 @@ def run_case(overrides: dict, t_end: float, n_frames: int, edges) -> dict:
     except SceneError as e:
         return {"status": "rejected", "reason": str(e)}
     sc = s.scene
-    rec.update(n_particles=sc.n_particles, n_steps=sc.n_steps, dt_s=sc.dt)
-    f = jax.jit(lambda st, p: simulate(sc, st, p)[0])
-    w0, c0 = time.perf_counter(), time.process_time()
-    compiled = f.lower(s.state, s.params).compile()
-    rec.update(compile_wall_s=time.perf_counter() - w0, compile_cpu_s=time.process_time() - c0)
+    compiled = compile_final(s, rec)
     walls, cpus = [], []
     while True:  # a loop shorter than 2 s is repeated (best of up to 3) to tame the noise
         w0, c0 = time.perf_counter(), time.process_time()
