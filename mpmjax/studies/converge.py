@@ -387,20 +387,21 @@ def plot(doc: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     cases = list(doc["cases"])
+    # one colour per series across every panel (a series' rows may be missing from a case)
+    colour = {}
+    for case in cases:
+        for r in doc["cases"][case]["rows"]:
+            colour.setdefault(r["series"], f"C{len(colour) % 10}")
     fig, axes = plt.subplots(2, len(cases), figsize=(5.2 * len(cases), 8.4), squeeze=False)
     for j, case in enumerate(cases):
         crow, an = doc["cases"][case], doc["analysis"].get(case, {})
         hs = crow["levels_m"]
         ax, axe = axes[0, j], axes[1, j]
-        names = []
-        for r in crow["rows"]:
-            if r["series"] not in names:
-                names.append(r["series"])
-        for k, name in enumerate(names):
+        for name in dict.fromkeys(r["series"] for r in crow["rows"]):
             rows = sorted((r for r in crow["rows"] if r["series"] == name and r.get("status") == "ok"), key=lambda r: r["level"])
             if not rows:
                 continue
-            c = f"C{k % 10}"
+            c = colour[name]
             ax.plot([hs[r["level"]] for r in rows], [r["runout_m"] for r in rows], "-o", c=c, ms=4, label=name)
             ax.plot([hs[r["level"]] for r in rows], [r["runout_farthest_m"] for r in rows], ":", c=c, lw=1)
             pts = [(r["cpu_s"], r["error_pct"]) for r in rows if r.get("error_pct") is not None]
