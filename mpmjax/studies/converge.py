@@ -62,7 +62,7 @@ from .._driver import USAGE_ERROR
 from .._io import _jsonable, atomic_write_text
 from .._metrics import RunoutGauge
 from .._observables import FRONT_FRACTION, gaussian_kernel
-from .._schema import SceneError, load_scene, validate
+from .._schema import SceneError, load_scene, parse_override, validate
 from .._shapes import STENCIL
 from .pareto import compile_final
 
@@ -602,11 +602,11 @@ def cmd_converge(args) -> int:
         return USAGE_ERROR
     base = {}
     for item in args.set:
-        key, sep, val = item.partition("=")
+        key, sep, _ = item.partition("=")
         if not sep or not key.startswith("numerics."):
             print(f"mpmjax: error: --set {item} is invalid: allowed: numerics.KEY=VALUE", file=sys.stderr)
             return USAGE_ERROR
-        base[key] = int(val) if val.isdigit() else val
+        key, base[key] = parse_override(item)  # a TOML value, as `run --set` reads it
     for case in args.cases:
         try:
             _config(case, base)
