@@ -30,6 +30,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax._src import xla_bridge  # backends_are_initialized: no public way to ask whether the backends started
 from jax.sharding import Mesh, PartitionSpec
 
 from ._schema import SceneError
@@ -47,8 +48,6 @@ def use_devices(n: int) -> list:
     """
     if n < 1:
         raise SceneError(f"numerics.devices = {n} is invalid: allowed range: >= 1")
-    from jax._src import xla_bridge  # the only way to ask whether the backends have started
-
     if n > 1 and not xla_bridge.backends_are_initialized():
         platforms = (jax.config.jax_platforms or "").split(",")
         if platforms[0] in ("", "cpu"):
