@@ -256,11 +256,10 @@ def build(cfg: dict) -> Setup:
     """Validated scene dict -> ``Setup`` (scene, params, initial state, info).
 
     A ``float64`` scene switches on ``jax_enable_x64`` (without it JAX would silently
-    truncate every array to float32).  A scene with ``numerics.devices`` > 1 asks for its
-    devices first (``_shard.use_devices``: on a CPU, host devices can be made only before JAX
-    starts its backends).
+    truncate every array to float32).  A scene with ``numerics.devices`` > 1 needs that many
+    devices in the process (``_shard.use_devices``; the run driver makes them on a CPU).
     """
-    use_devices(int(cfg["numerics.devices"]))
+    use_devices(int(cfg["numerics.devices"]), make=False)
     dim, h = cfg["domain.dim"], cfg["domain.cell_size_m"]
     dtype = cfg["numerics.dtype"]
     if dtype == "float64" and not jax.config.jax_enable_x64:

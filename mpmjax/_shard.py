@@ -17,7 +17,9 @@ Results equal the single-device run's to float rounding, not bit for bit: the re
 the devices' partial grids in another order than one scatter does (tests/test_shard.py).
 
 On a CPU, N host devices are made with ``jax_num_cpu_devices`` (``use_devices``), which works
-only before JAX starts its backends; the command line sets it first.  A particle count that N
+only before JAX starts its backends and holds for the whole process: the run driver
+(``mpmjax run``, ``run_scene``) does it first; ``build`` and the step only check that the devices
+are there.  A particle count that N
 does not divide is padded with inactive particles for the sharded step (they carry no mass, so
 they add exact zeros to the grid) and the padding is dropped again after it.
 
@@ -39,37 +41,39 @@ from ._schema import SceneError
 AXIS = "particles"
 
 
-def use_devices(n: int) -> list:
-    """The first ``n`` devices of the default backend, made available if need be.
+def use_devices(n: int, make: bool = True) -> list:
+    """The first ``n`` devices of the default backend.
 
-    On a CPU with fewer than ``n`` devices, asks JAX for ``n`` host devices
-    (``jax_num_cpu_devices``); that is possible only before anything has started JAX's
-    backends.  Raises ``SceneError`` naming ``numerics.devices`` when ``n`` devices cannot be had.
+    ``make``: on a CPU with fewer than ``n`` devices, first ask JAX for ``n`` host devices
+    (``jax_num_cpu_devices``); that is possible only before anything has started JAX's backends,
+    and it holds for the whole process, so only the run driver does it (``build`` and the step
+    only check).  Raises ``SceneError`` naming ``numerics.devices`` when ``n`` devices are not there.
     """
     if n < 1:
         raise SceneError(f"numerics.devices = {n} is invalid: allowed range: >= 1")
-    if n > 1 and not xla_bridge.backends_are_initialized():
+    if make and n > 1 and not xla_bridge.backends_are_initialized():
         platforms = (jax.config.jax_platforms or "").split(",")
         if platforms[0] in ("", "cpu"):
             try:
-                current = jax.config.jax_num_cpu_devices
-                if current < n:
+                if jax.config.jax_num_cpu_devices < n:
                     jax.config.update("jax_num_cpu_devices", n)
             except Exception:  # set by XLA_FLAGS or refused: jax.devices() below says what there is
                 pass
     devs = jax.devices()
     if len(devs) < n:
         raise SceneError(
-            f"numerics.devices = {n} is invalid here: JAX has {len(devs)} {devs[0].platform} device(s) and "
-            f"they can no longer be changed in this process (on a CPU, set numerics.devices before the first JAX "
-            f"computation, or XLA_FLAGS=--xla_force_host_platform_device_count={n}); allowed range: 1 .. {len(devs)}"
+            f"numerics.devices = {n} is invalid here: JAX has {len(devs)} {devs[0].platform} device(s) in this "
+            f"process (on a CPU, `mpmjax run` and `mpmjax.run_scene` make host devices before JAX starts; in your "
+            f"own code set jax.config.update('jax_num_cpu_devices', {n}) or "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={n} before the first JAX computation); "
+            f"allowed range: 1 .. {len(devs)}"
         )
     return devs[:n]
 
 
 def particle_mesh(n: int) -> Mesh:
-    """A one-axis mesh (``AXIS``) over the first ``n`` devices."""
-    return Mesh(np.asarray(use_devices(n)), (AXIS,))
+    """A one-axis mesh (``AXIS``) over the first ``n`` devices (which must exist)."""
+    return Mesh(np.asarray(use_devices(n, make=False)), (AXIS,))
 
 
 def _specs(tree, n_particles: int):
