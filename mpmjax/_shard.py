@@ -19,9 +19,9 @@ the devices' partial grids in another order than one scatter does (tests/test_sh
 On a CPU, N host devices are made with ``jax_num_cpu_devices`` (``use_devices``), which works
 only before JAX starts its backends and holds for the whole process: the run driver
 (``mpmjax run``, ``run_scene``) does it first; ``build`` and the step only check that the devices
-are there.  A particle count that N
-does not divide is padded with inactive particles for the sharded step (they carry no mass, so
-they add exact zeros to the grid) and the padding is dropped again after it.
+are there.  A particle count that N does not divide is padded with inactive particles for the
+sharded step (they carry no mass, so they add exact zeros to the grid) and the padding is dropped
+again after it.
 
 Pipe-inflow scenes are refused with N > 1 for now: the release schedule numbers pool particles
 by their global index (``_boundary.make_release``), which a device does not know.
