@@ -28,6 +28,7 @@ from . import _rheology, _shapes
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
+from ._shard import use_devices
 
 
 def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
@@ -255,8 +256,10 @@ def build(cfg: dict) -> Setup:
     """Validated scene dict -> ``Setup`` (scene, params, initial state, info).
 
     A ``float64`` scene switches on ``jax_enable_x64`` (without it JAX would silently
-    truncate every array to float32).
+    truncate every array to float32).  A scene with ``numerics.devices`` > 1 needs that many
+    devices in the process (``_shard.use_devices``; the run driver makes them on a CPU).
     """
+    use_devices(int(cfg["numerics.devices"]), make=False)
     dim, h = cfg["domain.dim"], cfg["domain.cell_size_m"]
     dtype = cfg["numerics.dtype"]
     if dtype == "float64" and not jax.config.jax_enable_x64:
@@ -364,6 +367,7 @@ def build(cfg: dict) -> Setup:
         lp_cells=0.5 / cfg["numerics.ppc"],
         grid_density_cap=float(cfg["numerics.grid_density_cap"]),
         volume_averaging=cfg["numerics.volume_averaging"],
+        devices=int(cfg["numerics.devices"]),
         transfer=cfg["numerics.transfer"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

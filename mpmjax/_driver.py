@@ -33,6 +33,7 @@ from ._build import build, memory_estimate, start_warnings
 from ._schema import SceneError, load_scene
 from ._io import FrameWriter, _jsonable, atomic_write_text, config_hash, read_checkpoint, read_result
 from ._io import write_checkpoint as _write_ckpt
+from ._shard import use_devices
 from ._simulate import StagedAdvance, make_prefix_advance
 from ._version import __version__
 from ._xdmf import write_xdmf
@@ -465,6 +466,7 @@ def _run_scene(
             f"differing keys: {shown or 'none found (the scene file changed)'}. Resume with the original scene "
             f"and overrides (or none: `{resume_command(out)}`)"
         )
+    use_devices(cfg["numerics.devices"])  # first: on a CPU, host devices can be made only before JAX starts
     check_memory(cfg)  # before anything is built: a run that cannot fit is refused (exit 2)
     setup = build(cfg)
     sc, info = setup.scene, setup.info

@@ -164,6 +164,7 @@ class Scene:
         phi the grid-measured packing fraction at the particle (``_transfer.packing_fraction``).
       volume_averaging: ``none`` or ``jbar``: the volume increment of each step averaged through
         the grid (F-bar / J-bar against volumetric locking; ``_transfer`` docstring).
+      devices: number of devices one run's particles are split over (``_shard``); 1: no sharding.
     """
 
     dim: int
@@ -192,6 +193,7 @@ class Scene:
     terrain: Terrain | None = None
     grid_density_cap: float = 0.0
     volume_averaging: str = "none"
+    devices: int = 1
 
     @property
     def n_nodes(self) -> int:

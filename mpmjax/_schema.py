@@ -152,6 +152,17 @@ _HEAD: dict[str, Key] = {
         choices=("none", "jbar"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
+    "numerics.devices": Key(
+        int,
+        1,
+        "-",
+        "Devices one run is split over (mpmjax run --devices): the particles are divided among them, each device "
+        "holds the whole grid and the devices' grids are summed every step (an all-reduce). On a CPU these are host "
+        "devices, one per core. Same results as one device to float rounding. Not with a pipe inflow yet. "
+        "Measured speed-up: docs/performance.md, \"One simulation across devices\".",
+        lo=1,
+        hi=1024,
+    ),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
 }
@@ -509,6 +520,11 @@ def _validate_inflow(out: dict, dim: int, lo, hi, h):
         raise SceneError(
             f"inflow.width_m = {out['inflow.width_m']} is invalid: allowed range: >= half the particle spacing "
             f"domain.cell_size_m / numerics.ppc = {h / out['numerics.ppc']} m"
+        )
+    if out["numerics.devices"] > 1:
+        raise SceneError(
+            f"numerics.devices = {out['numerics.devices']} is invalid with a pipe inflow (its release schedule numbers "
+            "the pool particles globally, which one device's share does not see); allowed: 1"
         )
     n = inflow_layout(out, dim)[2]
     if n > _MAX_PARTICLES:

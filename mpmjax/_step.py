@@ -32,6 +32,7 @@ The same code runs in 2D (plane strain) and 3D.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -39,17 +40,26 @@ from . import _shapes
 from ._boundary import _wall_masks, apply_wall, make_release, node_fill, pipe_nodes, terrain_velocity
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._scene import Params, Scene, State
+from ._shard import AXIS, shard_particles
 from ._transfer import make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
 EMPTY_NODE_FRACTION = 1e-9
 
 
-def make_step(scene: Scene):
-    """Build the pure step function ``step(state, params) -> state`` for ``scene``."""
+def make_step(scene: Scene, axis: str | None = None):
+    """Build the pure step function ``step(state, params) -> state`` for ``scene``.
+
+    With ``scene.devices`` > 1 the step runs sharded over particles on that many devices
+    (``_shard``).  ``axis``: the mesh axis name when this step is the per-device body of
+    ``shard_map`` (``_shard.shard_particles``): the grid sums and the lost count are then
+    reduced across it.
+    """
+    if scene.devices > 1 and axis is None:
+        return shard_particles(make_step(scene, AXIS), scene.devices)
     dim, dt = scene.dim, scene.dt
     walls = _wall_masks(scene)
-    p2g = make_p2g(scene)
+    p2g = make_p2g(scene, axis)
     g2p = make_g2p(scene)
     rheo = scene.rheology
     lo = np.asarray(scene.lo)
@@ -132,7 +142,7 @@ def make_step(scene: Scene):
             # s (I + dt L), s = ((1 + dbar)/(1 + delta))^(1/dim), so det(I + dt L) = 1 + dbar.
             delta = volume_increment(L, dt)
             mass_p = params.material.rho * state.vol0 * state.active
-            dbar = volume_average(scene, st, mass_p, delta[:, None], inv_m, has)[:, 0]
+            dbar = volume_average(scene, st, mass_p, delta[:, None], inv_m, has, axis)[:, 0]
             pos = (delta > -1.0) & (dbar > -1.0)
             ln_s = jnp.where(pos, jnp.log1p(jnp.where(pos, dbar, 0.0)) - jnp.log1p(jnp.where(pos, delta, 0.0)), 0.0)
             s_1 = jnp.expm1(ln_s / dim)[:, None, None]  # s - 1, accurate for s near 1
@@ -165,6 +175,9 @@ def make_step(scene: Scene):
         finite = jnp.all(jnp.isfinite(x), axis=1) & jnp.all(jnp.isfinite(v_p), axis=1) & jnp.isfinite(J) & (J > 0)
         ok = inside & finite
         lost_now = state.active & ~ok
+        n_lost_now = jnp.sum(lost_now).astype(jnp.int32)
+        if axis is not None:
+            n_lost_now = jax.lax.psum(n_lost_now, axis)
         active = state.active & ok
 
         def keep(new, old):
@@ -183,7 +196,7 @@ def make_step(scene: Scene):
             active=active,
             gate=gate,
             t=state.t + dt,
-            n_lost=state.n_lost + jnp.sum(lost_now).astype(jnp.int32),
+            n_lost=state.n_lost + n_lost_now,
         )
 
     return step

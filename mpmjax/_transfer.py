@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import itertools
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -132,8 +133,24 @@ class _Stencil:
         self.S = S
 
 
-def make_p2g(scene: Scene):
-    """Returns ``p2g(state, params) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``."""
+def scatter_add(idx, vals, n_nodes: int):
+    """The reference scatter: grid (n_nodes, C) with grid[idx[p, s]] += vals[p, s] (XLA's scatter-add).
+
+    ``idx`` (n, S) flat node indices, ``vals`` (n, S, C).  On the CPU XLA runs the updates one at a
+    time on one core (docs/performance.md, "P2G alternatives"); ``make_p2g`` takes another
+    ``scatter`` of the same signature for the alternatives measured there."""
+    C = vals.shape[-1]
+    grid = jnp.zeros((n_nodes, C), vals.dtype)
+    return grid.at[idx.reshape(-1)].add(vals.reshape(-1, C))
+
+
+def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
+    """Returns ``p2g(state, params) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``.
+
+    ``axis``: inside ``shard_map`` over particles (``_shard``), the mesh axis name over which
+    each device's partial grid is summed (``psum``), so every device gets the whole grid.
+    ``scatter(idx, vals, n_nodes) -> grid``: the scatter-add (default ``scatter_add``).
+    """
     dim = scene.dim
     apic = scene.transfer == "apic"
 
@@ -152,8 +169,9 @@ def make_p2g(scene: Scene):
         mom = mw[..., None] * vel
         force = -vol[:, None, None] * _bmv(sigma, st.dw)
         chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
-        grid = jnp.zeros((scene.n_nodes, 1 + 2 * dim), state.x.dtype)
-        grid = grid.at[st.idx.reshape(-1)].add(chans.reshape(-1, 1 + 2 * dim))
+        grid = scatter(st.idx, chans, scene.n_nodes)
+        if axis is not None:
+            grid = jax.lax.psum(grid, axis)
         return grid[:, 0], grid[:, 1 : 1 + dim], grid[:, 1 + dim :], st
 
     return p2g
@@ -229,18 +247,19 @@ def volume_increment(L, dt):
     return tr + minors + jnp.linalg.det(A)
 
 
-def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has):
+def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has, axis: str | None = None):
     """The mass-weighted average through the grid of the particle fields ``q`` (n, k) (J-bar).
 
     ``st`` the stencil of the step's P2G, ``mass_p`` (n,) the particle masses (0 when inactive),
     ``inv_m`` (N,) 1/m_i on the nodes that hold mass and 0 elsewhere, ``has`` (N,) bool those
     nodes.  Nodal q_i = sum_p w_ip m_p q_p / m_i; at the particle
     sum_i w_ip q_i / sum_{i: has} w_ip (the module docstring).  A particle none of whose
-    nodes holds mass keeps its own q.
+    nodes holds mass keeps its own q.  ``axis``: as for ``make_p2g``, the nodal sums are reduced
+    over that mesh axis.
     """
-    k = q.shape[1]
-    num = jnp.zeros((scene.n_nodes, k), q.dtype)
-    num = num.at[st.idx.reshape(-1)].add(((mass_p[:, None] * st.w)[:, :, None] * q[:, None, :]).reshape(-1, k))
+    num = scatter_add(st.idx, (mass_p[:, None] * st.w)[:, :, None] * q[:, None, :], scene.n_nodes)
+    if axis is not None:
+        num = jax.lax.psum(num, axis)
     q_node = num * inv_m[:, None]
     wsum = jnp.sum(st.w * has[st.idx].astype(q.dtype), axis=1)
     ok = wsum > 0.0

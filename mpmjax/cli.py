@@ -66,11 +66,12 @@ def cmd_run(args) -> int:
             return fail(f"--out {args.out} and --resume {args.resume} name different folders; give one")
     else:
         out = Path(args.out) if args.out else Path("runs") / Path(args.scene or "dambreak-lab").stem
+    overrides = list(args.set or []) + ([f"numerics.devices={args.devices}"] if args.devices is not None else [])
     try:
         run_scene(
             args.scene,
             out,
-            args.set,
+            overrides or None,
             quiet=args.quiet,
             checkpoint_every=args.checkpoint_every,
             resume=bool(args.resume),
@@ -134,6 +135,12 @@ def main(argv=None) -> int:
     pr.add_argument("--out", help="output directory (default runs/SCENE)")
     pr.add_argument(
         "--set", action="append", metavar="KEY=VALUE", help="override a scene key, e.g. material.mu0_pa_s=2"
+    )
+    pr.add_argument(
+        "--devices",
+        type=int,
+        metavar="N",
+        help="split the run's particles over N devices (numerics.devices; on a CPU: N host devices, one per core)",
     )
     pr.add_argument("--quiet", action="store_true", help="no progress output")
     pr.add_argument(

@@ -1,7 +1,7 @@
 """Measure the static skips of docs/performance.md, "Static skips" (issue 6).
 
 Run from the repository root: ``.venv/bin/python docs/bench/static_skips.py [part ...]`` with parts
-``rheology``, ``dim``, ``grid``, ``staged`` (default: all).  Appends one JSON line per measurement
+``rheology``, ``dim``, ``grid``, ``staged`` (default: all), ``mpm88_minimal`` (issue 18 item 2).  Appends one JSON line per measurement
 to docs/bench/static_skips.jsonl.  Timings are of compiled code (compile reported apart), best of
 ``reps`` repetitions; the load average at the start of each measurement is recorded with it.
 """
@@ -14,11 +14,11 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 
-from mpmjax import _simulate, load_scene, run_scene
-from mpmjax import build
+from mpmjax import _simulate, build, load_scene, run_scene, validate
 from mpmjax._simulate import _split, make_chunk
 from mpmjax.studies.bench import _measure
 
@@ -233,6 +233,93 @@ def staged():
                 mass_final_kg=s["mass_final_kg"],
                 min_stage=_simulate.MIN_STAGE,
             )
+
+
+class _Minimal(NamedTuple):
+    x: jax.Array
+    v: jax.Array
+    C: jax.Array
+    J: jax.Array
+
+
+def minimal_mpm88(steps: int):
+    """``(state, advance)``: a minimal JAX port of the mpm88 step (issue 18 item 2's yardstick).
+
+    The MLS-MPM of docs/bench/taichi_mlsmpm.py written in jax.numpy with nothing else: 128^2
+    nodes, 8192 particles, quadratic B-spline, APIC with the pressure impulse p = kappa (1 - J) in
+    the affine term, gravity, free-slip walls three cells thick, one scatter-add P2G (mass and
+    momentum stacked), float32; ``advance`` runs ``steps`` steps in a ``lax.scan``.
+    """
+    import jax.numpy as jnp
+
+    n_grid, dx, dt = 128, 1.0 / 128, 1e-4
+    rho, kappa, g, bound = 1000.0, 4.0e5, 9.81, 3
+    nx, ny = 64, 128
+    p_vol = (0.5 * dx) ** 2
+    p_mass = rho * p_vol
+    k = jnp.arange(nx * ny)
+    x0 = jnp.stack([0.1 + (k % nx + 0.5) * 0.5 * dx, 0.1 + (k // nx + 0.5) * 0.5 * dx], axis=1).astype(jnp.float32)
+    n = x0.shape[0]
+    state = _Minimal(x0, jnp.zeros_like(x0), jnp.zeros((n, 2, 2), jnp.float32), jnp.ones((n,), jnp.float32))
+    offs = [(a, b) for a in range(3) for b in range(3)]
+    gi, gj = jnp.meshgrid(jnp.arange(n_grid), jnp.arange(n_grid), indexing="ij")
+    gi, gj = gi.reshape(-1), gj.reshape(-1)
+
+    def stencil(x):
+        xi = x / dx
+        base = jnp.floor(xi - 0.5).astype(jnp.int32)
+        f = xi - base
+        w = [0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2]
+        idx = jnp.stack([(base[:, 0] + a) * n_grid + base[:, 1] + b for a, b in offs], axis=1)
+        wt = jnp.stack([w[a][:, 0] * w[b][:, 1] for a, b in offs], axis=1)
+        r = jnp.stack([(jnp.array([a, b], jnp.float32)[None] - f) * dx for a, b in offs], axis=1)
+        return idx, wt, r
+
+    def step(s, _):
+        idx, wt, r = stencil(s.x)
+        impulse = -dt * 4.0 * kappa * p_vol * (1.0 - s.J) / dx**2
+        affine = -impulse[:, None, None] * jnp.eye(2, dtype=jnp.float32)[None] + p_mass * s.C
+        mom = wt[..., None] * (p_mass * s.v[:, None, :] + jnp.einsum("nij,nsj->nsi", affine, r))
+        chans = jnp.concatenate([mom, (wt * p_mass)[..., None]], axis=-1).reshape(-1, 3)
+        grid = jnp.zeros((n_grid * n_grid, 3), jnp.float32).at[idx.reshape(-1)].add(chans)
+        m = grid[:, 2]
+        gv = jnp.where(m[:, None] > 0, grid[:, :2] / jnp.where(m > 0, m, 1.0)[:, None], 0.0)
+        gv = gv.at[:, 1].add(-dt * g)
+        vx = jnp.where(((gi < bound) & (gv[:, 0] < 0)) | ((gi > n_grid - bound) & (gv[:, 0] > 0)), 0.0, gv[:, 0])
+        vy = jnp.where(((gj < bound) & (gv[:, 1] < 0)) | ((gj > n_grid - bound) & (gv[:, 1] > 0)), 0.0, gv[:, 1])
+        gv = jnp.where(m[:, None] > 0, jnp.stack([vx, vy], axis=1), 0.0)
+        gvp = gv[idx]  # (n, 9, 2)
+        nv = jnp.sum(wt[..., None] * gvp, axis=1)
+        nC = 4.0 / dx**2 * jnp.einsum("ns,nsi,nsj->nij", wt, gvp, r)
+        J = s.J * (1.0 + dt * (nC[:, 0, 0] + nC[:, 1, 1]))
+        return _Minimal(s.x + dt * nv, nv, nC, J), None
+
+    return state, jax.jit(lambda s: jax.lax.scan(step, s, None, length=steps)[0])
+
+
+def mpm88_minimal(steps: int = 500, rounds: int = 6):
+    """mpmjax's mpm88-equivalent (every skip the scene allows) against ``minimal_mpm88``, timed in turn
+    (CPU time and wall time per call, each code first in turn), issue 18 item 2."""
+    from mpmjax.studies.bench import MPM88
+
+    setup = build(validate(json.loads(json.dumps(MPM88))))
+    full = jax.jit(make_chunk(setup.scene, steps))
+    m_state, m_adv = minimal_mpm88(steps)
+    progs = {
+        "mpmjax mpm88-equivalent": lambda: full(setup.state, setup.params).x,
+        "minimal JAX port": lambda: m_adv(m_state).x,
+    }
+    for f in progs.values():
+        jax.block_until_ready(f())
+    names = list(progs)
+    for rnd in range(rounds):
+        for k in names[rnd % 2 :] + names[: rnd % 2]:
+            load = os.getloadavg()[0]
+            c0, w0 = time.process_time(), time.perf_counter()
+            jax.block_until_ready(progs[k]())
+            cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+            record(part="mpm88_minimal", code=k, round=rnd + 1, n_particles=8192, steps=steps, cpu_s=cpu,
+                   wall_s=wall, particle_steps_per_s_wall=8192 * steps / wall, load_avg_start=load)
 
 
 if __name__ == "__main__":
