@@ -18,7 +18,7 @@ Accumulation (``make_hazard_advance``): inside the forward driver's compiled fra
 running maxima and arrival times updated, an extra carry of the scan next to the state.  So the maps
 see the whole run, not only the saved frames, and a scene that does not ask for hazard maps runs the
 unchanged advance and pays nothing.  The carry is outside the differentiable path (``simulate``,
-used by calibration, never carries it).  Its cost per step is a scatter-add of 3 numbers per particle
+used by calibration, never carries it).  Its cost per step is a scatter-add of 1 + dim numbers per particle
 onto the bins plus elementwise maxima over the bins (measured: docs/scenarios.md, field-breach-3d).
 A pipe pour with hazard maps steps its whole buffer each frame (the staged prefixes are not used).
 
