@@ -97,8 +97,8 @@ def bins(state: State, grid: HazardGrid):
     """Flow depth [m] and depth-averaged speed [m/s] per bin (flat) of a state (module docstring)."""
     k = len(grid.shape)
     x, dt = state.x, state.x.dtype
-    idx = jnp.floor((x[:, :k] - jnp.asarray(grid.lo, dt)) / grid.cell).astype(jnp.int32)
-    inside = state.active & jnp.all((idx >= 0) & (idx < jnp.asarray(grid.shape)), axis=1)
+    idx = jnp.floor((x[:, :k] - jnp.asarray(grid.lo, dt)[None, :]) / grid.cell).astype(jnp.int32)
+    inside = state.active & jnp.all((idx >= 0) & (idx < jnp.asarray(grid.shape)[None, :]), axis=1)
     flat = idx[:, 0] if k == 1 else idx[:, 0] * grid.shape[1] + idx[:, 1]
     flat = jnp.where(inside, flat, grid.n_bins)  # dropped by the scatter
     vol = jnp.where(inside, state.vol0, 0.0)
