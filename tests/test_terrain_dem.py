@@ -20,6 +20,9 @@ import mpmjax
 from mpmjax import cli
 from mpmjax._build import build, terrain_of
 from mpmjax._dem import read_raster, write_raster
+from mpmjax._hazard import HazardAdvance, HazardGrid, final_maps, write_hazard
+from mpmjax._io import read_result
+from mpmjax._metrics import thickness_map
 from mpmjax._schema import SceneError, load_scene
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -251,21 +254,29 @@ def test_release_outside_the_domain_or_below_the_terrain_is_refused(tmp_path):
 
 @pytest.fixture(scope="module")
 def breach_run(tmp_path_factory):
-    """The built-in field-breach-3d coarsened to h = 20 m (about 900 particles) for 4 s (22 steps),
-    with hazard maps."""
-    out = tmp_path_factory.mktemp("breach") / "run"
-    summary = mpmjax.run_scene(
-        "field-breach-3d", out, ["domain.cell_size_m=20.0", "time.t_end_s=4.0", "time.n_frames=2"], quiet=True
+    """The built-in field-breach-3d coarsened to h = 20 m (912 particles) for 4 s (2 frames of 11
+    steps), advanced with the driver's hazard advance and written as the driver writes the maps
+    (without the driver's pictures, which take most of a run_scene this small)."""
+    out = tmp_path_factory.mktemp("breach")
+    cfg = load_scene(
+        "field-breach-3d",
+        ["domain.cell_size_m=20.0", "time.t_end_s=4.0", "time.n_frames=2", 'numerics.volume_averaging="none"'],
     )
-    return out, summary
+    setup = build(cfg)
+    grid = HazardGrid.of(setup.scene, cfg)
+    adv = HazardAdvance(setup.scene, setup.state, setup.params, grid)
+    states = [setup.state]
+    for i in range(setup.scene.n_frames):
+        states.append(adv(i, states[-1], setup.params))
+    hz = write_hazard(out, cfg, grid, final_maps(adv.maps, states[-1], grid))
+    return out, hz, setup, states
 
 
 def test_hazard_rasters_reopen_with_rasterio_with_the_transform_and_crs(breach_run):
-    """Every hazard GeoTIFF reopens with rasterio with the transform summary.json states (pixel =
+    """Every hazard GeoTIFF reopens with rasterio with the transform the summary states (pixel =
     one plan-view bin, north up, map coordinates = scene + map origin) and the DEM's CRS; at h = 20 m
     over the DEM's own extent it is the DEM's transform."""
-    out, s = breach_run
-    hz = s["hazard"]
+    out, hz, setup, _ = breach_run
     assert hz["format"] == "geotiff" and len(hz["files"]) == 5
     with rasterio.open(TIF) as dem:
         dem_t, dem_crs = dem.transform, dem.crs
@@ -275,12 +286,7 @@ def test_hazard_rasters_reopen_with_rasterio_with_the_transform_and_crs(breach_r
             assert r.transform == dem_t
             assert r.crs == dem_crs and r.crs.to_epsg() == 32719
             assert (r.width, r.height) == (80, 25)
-    assert s["map"]["epsg"] == 32719 and s["map"]["map_origin_m"] == [X0, Y0]
-    import h5py
-
-    with h5py.File(out / "result.h5") as f:
-        assert list(f.attrs["map_origin_m"]) == [X0, Y0] and int(f.attrs["epsg"]) == 32719
-        assert json.loads(f.attrs["release_json"])["volume_m3"] == pytest.approx(s["release"]["volume_m3"])
+    assert setup.info["map"]["epsg"] == 32719 and setup.info["map"]["map_origin_m"] == [X0, Y0]
 
 
 def test_deposit_raster_integrates_to_the_particles_rest_volume(breach_run):
@@ -289,16 +295,16 @@ def test_deposit_raster_integrates_to_the_particles_rest_volume(breach_run):
     volumes, so only float32 storage and particles outside the plan could make it differ), and its
     volume-weighted centroid, from the raster's transform, lies within one cell of the particles'
     centroid in map coordinates (scene + map origin): the raster is placed right on the map."""
-    out, s = breach_run
-    res = mpmjax.read_result(out / "result.h5")
-    act = res["frames"]["active"][-1].astype(bool)
-    x = res["frames"]["x_m"][-1][act]
-    v0 = res["particles"]["vol0_m3"][act]
+    out, hz, _, states = breach_run
+    act = np.asarray(states[-1].active)
+    x = np.asarray(states[-1].x, float)[act]
+    v0 = np.asarray(states[-1].vol0, float)[act]
     with rasterio.open(out / "hazard_deposit_thickness_m.tif") as r:
         d = r.read(1)
         t = r.transform
     area = abs(t.a * t.e)
     assert d.sum() * area == pytest.approx(v0.sum(), rel=0.02)
+    assert hz["deposit_volume_m3"] == pytest.approx(v0.sum(), rel=1e-5)
     rows, cols = np.indices(d.shape)
     xm, ym = t * (cols + 0.5, rows + 0.5)
     cx, cy = (d * xm).sum() / d.sum(), (d * ym).sum() / d.sum()
@@ -308,11 +314,11 @@ def test_deposit_raster_integrates_to_the_particles_rest_volume(breach_run):
 
 
 def test_hazard_maxima_cover_every_saved_frame_and_arrival_is_consistent(breach_run):
-    """Sampled every step inside the scan, the maximum depth map is at least each saved frame's depth
-    map (recomputed from result.h5) and at least the final deposit; arrival times are in [dt, t_end]
-    where the bin was ever wet, and no data elsewhere; max depth x speed <= max depth x max speed."""
-    out, s = breach_run
-    res = mpmjax.read_result(out / "result.h5")
+    """Sampled every step inside the scan, the maximum depth map is at least each frame's depth map
+    (``mpmjax.thickness_map`` of the frame's particles) and so at least the final deposit; arrival
+    times lie in (0, t_end] where the bin was ever wet and are no data elsewhere; max depth x speed
+    <= max depth x max speed."""
+    out, hz, setup, states = breach_run
     with rasterio.open(out / "hazard_max_depth_m.tif") as r:
         dmax = r.read(1)
         edges_x = r.bounds.left + 20.0 * np.arange(r.width + 1) - X0
@@ -323,30 +329,29 @@ def test_hazard_maxima_cover_every_saved_frame_and_arrival_is_consistent(breach_
         vmax = r.read(1)
     with rasterio.open(out / "hazard_max_depth_speed_m2_s.tif") as r:
         qmax = r.read(1)
-    v0 = res["particles"]["vol0_m3"]
-    for k in range(len(res["frames"]["t_s"])):
-        th = mpmjax.thickness_map(res["frames"]["x_m"][k], v0, res["frames"]["active"][k], edges_x, edges_y)
-        assert np.all(dmax >= th.T[::-1, :] - 1e-4)
-    wet = dmax >= s["hazard"]["wet_depth_m"]
-    assert np.array_equal(~arr.mask, wet)
+    for st in states[1:]:
+        th = thickness_map(np.asarray(st.x, float), np.asarray(st.vol0), np.asarray(st.active), edges_x, edges_y)
+        assert np.all(dmax >= th.T[::-1, :] * (1 - 1e-6) - 1e-4)
+    wet = dmax >= hz["wet_depth_m"]
+    assert np.array_equal(~np.ma.getmaskarray(arr), wet)
     assert arr.min() > 0 and arr.max() <= 4.0 + 1e-4
     assert np.all(qmax <= dmax * vmax * (1 + 1e-5) + 1e-6)
 
 
 def test_hazard_profile_of_a_2d_run(tmp_path):
     """2D: the maps are a profile along x (hazard_profile.csv); its deposit column integrates to
-    the rest volume (m^2 per metre) within 2 % and the release (an interval, map = scene without a
-    DEM) seeds the pond over a flat floor exactly: width x depth."""
+    the rest volume (m^2 per metre) within 2 % and the release (an interval in map coordinates, scene
+    = map - terrain.map_origin_m) seeds the pond over a flat floor exactly: width x depth; the map
+    origin and the release go into result.h5's attributes."""
     raw = {
         "name": "profile",
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [1.0, 0.2], "cell_size_m": 0.02},
         "time": {"t_end_s": 0.1, "n_frames": 2},
         "material": {"model": "newtonian", "density_kg_m3": 1000.0, "bulk_modulus_pa": 2e4, "viscosity_pa_s": 0.5},
-        "release": {"region_map_m": [0.0, 0.2], "pond_level_m": 0.1},
+        "terrain": {"map_origin_m": [1000.0]},
+        "release": {"region_map_m": [1000.0, 1000.2], "pond_level_m": 0.1},
         "output": {"hazard_maps": True, "hazard_every_steps": 2, "hazard_depth_m": 0.005},
     }
-    import tomllib  # noqa: F401  (the scene is written as TOML below)
-
     p = tmp_path / "p.toml"
     p.write_text(_toml(raw))
     s = mpmjax.run_scene(str(p), tmp_path / "o", [], quiet=True)
@@ -355,6 +360,10 @@ def test_hazard_profile_of_a_2d_run(tmp_path):
     assert prof.shape == (50, 6)
     assert prof[:, 5].sum() * 0.02 == pytest.approx(0.02, rel=0.02)
     assert s["hazard"]["every_steps"] == 2 and (tmp_path / "o" / "hazard_maps.png").is_file()
+    assert prof[0, 0] == pytest.approx(1000.01) and s["map"]["map_origin_m"] == [1000.0]
+    attrs = read_result(tmp_path / "o" / "result.h5")["attrs"]
+    assert list(attrs["map_origin_m"]) == [1000.0] and attrs["epsg"] == -1 and attrs["crs_wkt"] == ""
+    assert json.loads(attrs["release_json"])["volume_m3"] == pytest.approx(0.02, rel=1e-9)
 
 
 def _toml(d: dict, prefix="") -> str:
