@@ -28,6 +28,10 @@ import math
 from pathlib import Path
 
 import numpy as np
+import rasterio  # GeoTIFF with its transform and CRS, read and written (pyproject.toml)
+from rasterio.crs import CRS
+from rasterio.errors import CRSError
+from rasterio.transform import from_origin
 
 from ._scene import Terrain
 
@@ -118,8 +122,6 @@ def nrows_ncols(nr, nc) -> str:
 
 
 def _read_tif(path: Path) -> Raster:
-    import rasterio  # GeoTIFF with its transform and CRS (pyproject.toml: why rasterio)
-
     try:
         with rasterio.open(path) as src:
             t = src.transform
@@ -156,9 +158,6 @@ def read_raster(path) -> Raster:
 
 def parse_crs(text: str, where: str) -> tuple[str, int | None]:
     """(WKT, EPSG code or None) of a CRS given as 'EPSG:n' or WKT (checked with rasterio)."""
-    from rasterio.crs import CRS
-    from rasterio.errors import CRSError
-
     try:
         crs = CRS.from_user_input(text)
     except CRSError as e:
@@ -303,8 +302,6 @@ def map_info(cfg: dict) -> dict | None:
     crs = cfg.get("terrain.crs") or ""
     epsg = None
     if crs:
-        from rasterio.crs import CRS
-
         epsg = CRS.from_user_input(crs).to_epsg()
     return {
         "map_origin_m": cfg["terrain.map_origin_m"],
@@ -328,9 +325,6 @@ def write_raster(path, values, left: float, top: float, cell: float, crs_wkt: st
     nr, nc = z.shape
     path = Path(path)
     if fmt == "geotiff":
-        import rasterio
-        from rasterio.transform import from_origin
-
         path = path.with_suffix(".tif")
         prof = dict(
             driver="GTiff", width=nc, height=nr, count=1, dtype="float32", nodata=NODATA,

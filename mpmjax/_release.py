@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from matplotlib.path import Path as _PolyPath
 
 GEOMETRIC_SUBDIVISION = 8  # sub-columns per axis and particle column of the reference volume
 
@@ -67,7 +66,10 @@ def region_polygon(region, map_origin, dim: int) -> np.ndarray:
 def _inside(poly: np.ndarray, xy: np.ndarray) -> np.ndarray:
     if poly.ndim == 1:
         return (xy[:, 0] >= poly[0]) & (xy[:, 0] < poly[1])
-    return _PolyPath(poly).contains_points(xy)
+    # matplotlib's polygon test (a dependency), imported only when a polygon is seeded: a heavy import
+    from matplotlib.path import Path as PolyPath
+
+    return PolyPath(poly).contains_points(xy)
 
 
 def _columns(poly: np.ndarray, lo, hi, s: float, sub: int = 1) -> np.ndarray:

@@ -38,8 +38,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _metrics
+from ._build import terrain_of
+from ._hazard import MAPS
 from ._io import read_result
 from ._observables import height_profile
+from ._release import region_polygon
 
 __all__ = [
     "FIELDS",
@@ -960,14 +963,12 @@ def plot_hazard_maps(path_png, cfg: dict, grid, maps: dict, summary: dict | None
 
     cfg: the validated scene; grid: ``_hazard.HazardGrid``; maps: ``_hazard.final_maps``.
     Returns the path written."""
+    # matplotlib only when a plot is made (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import LightSource
-
-    from ._hazard import MAPS
-    from ._release import region_polygon
 
     origin = np.asarray(cfg["terrain.map_origin_m"] or [0.0] * len(grid.shape), float)
     names = list(MAPS)
@@ -988,8 +989,6 @@ def plot_hazard_maps(path_png, cfg: dict, grid, maps: dict, summary: dict | None
         extent = (xe[0], xe[1], ye[0], ye[1])
         ter = None
         if cfg["terrain.type"] != "none":
-            from ._build import terrain_of
-
             t = terrain_of(cfg)
             xc = grid.lo[0] + (np.arange(nx) + 0.5) * grid.cell
             yc = grid.lo[1] + (np.arange(ny) + 0.5) * grid.cell
