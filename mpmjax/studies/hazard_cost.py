@@ -5,7 +5,8 @@ without hazard maps (``_simulate.make_chunk``, what a scene that does not ask fo
 them (``_hazard.make_hazard_advance``, sampling every k steps) are compiled for the same frame of
 ``--steps`` steps, then run alternately ``--reps`` times each from the same initial state; the CPU
 time (``time.process_time``, all threads) and the wall time of each call are recorded and the best
-of each is compared.  Prints one JSON object (docs/scenarios.md, field-breach-3d, has the figures).
+of each is compared.  The map update alone (one sample: binning and maxima) is also timed over
+20 x ``--steps`` calls, since the difference of whole frames is within a shared machine's noise.  Prints one JSON object (docs/scenarios.md, field-breach-3d, has the figures).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import time
 import jax
 
 from .._build import build
-from .._hazard import HazardGrid, init_maps, make_hazard_advance
+from .._hazard import HazardGrid, init_maps, make_hazard_advance, update
 from .._schema import load_scene
 from .._simulate import make_chunk
 
@@ -42,6 +43,18 @@ def measure(scene: str, overrides: list[str], steps: int, reps: int, every: list
             cpu[name].append(time.process_time() - c0)
             wall[name].append(time.perf_counter() - w0)
     best = {k: min(v) / steps for k, v in cpu.items()}
+    # the map update alone (the binning and maxima of one sample), timed over many calls: the
+    # difference of two whole frames above is within the noise of a shared machine
+    grid = HazardGrid.of(sc, cfg)
+    upd = jax.jit(lambda m, s: update(m, s, grid)).lower(init_maps(grid, st.x.dtype), st).compile()
+    maps = init_maps(grid, st.x.dtype)
+    jax.block_until_ready(upd(maps, st))
+    n_upd = 20 * steps
+    c0 = time.process_time()
+    for _ in range(n_upd):
+        maps = upd(maps, st)
+    jax.block_until_ready(maps)
+    update_cpu = (time.process_time() - c0) / n_upd
     return {
         "scene": scene,
         "overrides": overrides,
@@ -53,6 +66,8 @@ def measure(scene: str, overrides: list[str], steps: int, reps: int, every: list
         "cpu_s_per_step_best": best,
         "wall_s_per_step_best": {k: min(v) / steps for k, v in wall.items()},
         "hazard_cpu_overhead": {k: best[k] / best["plain"] - 1.0 for k in best if k != "plain"},
+        "update_alone_cpu_s": update_cpu,
+        "update_alone_fraction_of_a_step": update_cpu / best["plain"],
     }
 
 
