@@ -111,8 +111,9 @@ def _add_release(cfg: dict, terrain, x, vol0, v):
     if not len(xr):
         raise SceneError(
             f"release.pond_level_m = {cfg['release.pond_level_m']} is invalid: it lies below the terrain everywhere "
-            f"in release.region_map_m = {cfg['release.region_map_m']} (nothing to release); allowed: a pond level "
-            "above the terrain somewhere in the region"
+            f"in release.region_map_m = {cfg['release.region_map_m']}, or no particle column (spacing "
+            f"{cfg['domain.cell_size_m'] / cfg['numerics.ppc']:g} m) has its centre in the region: nothing to release; "
+            "allowed: a pond level above the terrain somewhere in a region at least a particle spacing wide"
         )
     info["back_m"] = (xr.min(axis=0) - 0.5 * cfg["domain.cell_size_m"] / cfg["numerics.ppc"]).tolist()
     return (

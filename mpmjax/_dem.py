@@ -146,7 +146,11 @@ def _read_tif(path: Path) -> Raster:
 def read_raster(path) -> Raster:
     """A DEM raster from an ESRI ASCII grid (.asc) or a GeoTIFF (.tif, .tiff)."""
     path = Path(path)
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except OSError as e:  # e.g. a name too long
+        raise _Error(f"{path}: cannot be read: {e.strerror or e}") from None
+    if not found:
         raise _Error(f"{path}: no such file")
     suffix = path.suffix.lower()
     if suffix == ".asc":

@@ -557,7 +557,7 @@ def _validate_terrain(out: dict, dim: int, lo, flat: dict):
         return
     sources = [k for k in ("terrain.heights_m", "terrain.csv", "terrain.dem") if out[k]]
     if not sources:
-        raise SceneError(f"terrain.type = {kind!r} needs terrain.heights_m, terrain.csv or terrain.dem")
+        raise SceneError(f"terrain.type = {kind!r} needs terrain.heights_m or terrain.csv (or terrain.dem)")
     if len(sources) > 1:
         raise SceneError(f"{' and '.join(sources)} are alternatives; give one")
     if out["terrain.dem"]:
