@@ -259,7 +259,7 @@ def memory_estimate(cfg: dict) -> dict:
       plus, on the CPU backend, ``device_bytes``.
 
     Particles: the sum of the bodies' lattice counts (an upper bound: overlaps are seeded once)
-    plus a pipe inflow's pool."""
+    plus a pipe inflow's pool, plus a breach release's geometric volume / (h / ppc)^dim."""
     dim = cfg["domain.dim"]
     item = 8 if cfg["numerics.dtype"] == "float64" else 4
     dx = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
