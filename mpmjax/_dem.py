@@ -182,11 +182,14 @@ def crop(r: Raster, window) -> Raster:
     b = r.bounds
     tol = 1e-6 * max(r.dx, r.dy)
     if not (xmin < xmax and ymin < ymax):
-        raise _Error(f"terrain.crop_map_m = {list(window)}: allowed: [xmin, ymin, xmax, ymax] with xmin < xmax, ymin < ymax")
+        raise _Error(
+            f"terrain.crop_map_m = {list(window)}: allowed: [xmin, ymin, xmax, ymax] with xmin < xmax, ymin < ymax"
+        )
     if xmin < b[0] - tol or ymin < b[1] - tol or xmax > b[2] + tol or ymax > b[3] + tol:
         raise _Error(
             f"terrain.crop_map_m = {list(window)} lies (partly) outside the raster {r.path}, whose extent is "
-            f"[{b[0]:.10g}, {b[1]:.10g}, {b[2]:.10g}, {b[3]:.10g}] (xmin, ymin, xmax, ymax, map m); allowed: a window inside it"
+            f"[{b[0]:.10g}, {b[1]:.10g}, {b[2]:.10g}, {b[3]:.10g}] (xmin, ymin, xmax, ymax, map m); "
+            "allowed: a window inside it"
         )
     nr, nc = r.z.shape
     xc = r.left + (np.arange(nc) + 0.5) * r.dx
@@ -240,9 +243,11 @@ def terrain_samples(cfg: dict, path: Path) -> dict:
     if dom[0] < ext[0] - tol or dom[1] < ext[1] - tol or dom[2] > ext[2] + tol or dom[3] > ext[3] + tol:
         what = "the crop window terrain.crop_map_m" if window is not None else f"the raster {path}"
         raise _Error(
-            f"the domain's plan [{dom[0]:.10g}, {dom[1]:.10g}, {dom[2]:.10g}, {dom[3]:.10g}] (map m: domain.lo_m/hi_m + "
+            f"the domain's plan [{dom[0]:.10g}, {dom[1]:.10g}, {dom[2]:.10g}, {dom[3]:.10g}] "
+            "(map m: domain.lo_m/hi_m + "
             f"terrain.map_origin_m = {list(origin)}) is not inside {what}, [{ext[0]:.10g}, {ext[1]:.10g}, "
-            f"{ext[2]:.10g}, {ext[3]:.10g}] (xmin, ymin, xmax, ymax); allowed: a domain inside it (scene = map - origin)"
+            f"{ext[2]:.10g}, {ext[3]:.10g}] (xmin, ymin, xmax, ymax); allowed: a domain inside it "
+            "(scene = map - origin)"
         )
     z, first = _samples(r, origin)
     # the samples the bilinear boundary reads under the domain: one pixel beyond its plan on each side

@@ -608,7 +608,9 @@ def _validate_release(out: dict, dim: int, lo, hi, flat: dict):
     region, pond = out["release.region_map_m"], out["release.pond_level_m"]
     if region is None:
         if pond is not None:
-            raise SceneError(f"release.pond_level_m = {pond} is invalid without release.region_map_m (the pond's region)")
+            raise SceneError(
+                f"release.pond_level_m = {pond} is invalid without release.region_map_m (the pond's region)"
+            )
         return
     if pond is None:
         raise SceneError("release.region_map_m needs release.pond_level_m, the pond surface elevation z [m]")
@@ -821,7 +823,11 @@ def validate(raw: dict) -> dict:
     if out["output.hazard_maps"] and out["output.hazard_format"] == "geotiff" and not out["terrain.crs"]:
         raise SceneError(
             "output.hazard_format = 'geotiff' needs a CRS, and the scene has none"
-            + (f" (the DEM {out['terrain.dem']} has no CRS in the file and no .prj beside it)" if out["terrain.dem"] else " (no terrain.dem)")
+            + (
+                f" (the DEM {out['terrain.dem']} has no CRS in the file and no .prj beside it)"
+                if out["terrain.dem"]
+                else " (no terrain.dem)"
+            )
             + "; allowed: set terrain.crs (e.g. 'EPSG:32719') with a DEM, or output.hazard_format = 'ascii' (or 'auto')"
         )
     _validate_release(out, dim, lo, hi, flat)

@@ -1018,7 +1018,8 @@ def plot_hazard_maps(path_png, cfg: dict, grid, maps: dict, summary: dict | None
                 img = maps[k].T[::-1, :]
                 show = wet if k != "deposit_thickness_m" else (img >= grid.threshold)
                 data = np.ma.masked_where(~show | ~np.isfinite(img), img)
-                im = ax.imshow(data, cmap="viridis" if k == "arrival_time_s" else "magma_r", extent=extent, origin="upper")
+                cmap = "viridis" if k == "arrival_time_s" else "magma_r"
+                im = ax.imshow(data, cmap=cmap, extent=extent, origin="upper")
                 fig.colorbar(im, ax=ax, shrink=0.8, label=f"[{MAPS[k][0]}]")
                 top = np.nanmax(img) if np.isfinite(img).any() else float("nan")
                 ax.set_title(f"{k}: {MAPS[k][1]} (max {top:.3g} {MAPS[k][0]})", fontsize=8)

@@ -98,7 +98,9 @@ def test_crop_window_sets_the_map_origin_and_scene_equals_map_minus_origin(tmp_p
     crop = "crop_map_m = [350400.0, 6300100.0, 351200.0, 6300400.0]"
     p = _scene(tmp_path, terrain_extra=crop, release=False)
     text = p.read_text().replace("hi_m = [1600.0, 500.0, 110.0]", "hi_m = [800.0, 300.0, 110.0]")
-    text = text.replace("lo_m = [100.0, 200.0, 95.0]\nhi_m = [200.0, 300.0, 105.0]", "lo_m = [100.0, 100.0, 95.0]\nhi_m = [200.0, 200.0, 105.0]")
+    text = text.replace(
+        "lo_m = [100.0, 200.0, 95.0]\nhi_m = [200.0, 300.0, 105.0]", "lo_m = [100.0, 100.0, 95.0]\nhi_m = [200.0, 200.0, 105.0]"
+    )
     p.write_text(text)
     cfg = load_scene(p)
     assert cfg["terrain.map_origin_m"] == [350400.0, 6300100.0]
@@ -135,7 +137,8 @@ def test_bilinear_resampling_to_the_cell_size_is_exact_on_a_plane(tmp_path):
         text = text.replace("cell_size_m = 20.0", "cell_size_m = 10.0")
         text = text.replace("lo_m = [0.0, 0.0, 30.0]", "lo_m = [10.0, 10.0, 30.0]")
         text = text.replace(
-            "lo_m = [100.0, 200.0, 95.0]\nhi_m = [200.0, 300.0, 105.0]", "lo_m = [100.0, 50.0, 95.0]\nhi_m = [200.0, 100.0, 105.0]"
+            "lo_m = [100.0, 200.0, 95.0]\nhi_m = [200.0, 300.0, 105.0]",
+            "lo_m = [100.0, 50.0, 95.0]\nhi_m = [200.0, 100.0, 105.0]",
         )
         p.write_text(text)
         cfg = load_scene(p)

@@ -6,7 +6,8 @@ them (``_hazard.make_hazard_advance``, sampling every k steps) are compiled for 
 ``--steps`` steps, then run alternately ``--reps`` times each from the same initial state; the CPU
 time (``time.process_time``, all threads) and the wall time of each call are recorded and the best
 of each is compared.  The map update alone (one sample: binning and maxima) is also timed over
-20 x ``--steps`` calls, since the difference of whole frames is within a shared machine's noise.  Prints one JSON object (docs/scenarios.md, field-breach-3d, has the figures).
+20 x ``--steps`` calls, since the difference of whole frames is within a shared machine's noise.
+Prints one JSON object (docs/scenarios.md, field-breach-3d, has the figures).
 """
 
 from __future__ import annotations
