@@ -1022,7 +1022,7 @@ def plot_hazard_maps(path_png, cfg: dict, grid, maps: dict, summary: dict | None
                 im = ax.imshow(data, cmap=cmap, extent=extent, origin="upper")
                 fig.colorbar(im, ax=ax, shrink=0.8, label=f"[{MAPS[k][0]}]")
                 top = np.nanmax(img) if np.isfinite(img).any() else float("nan")
-                ax.set_title(f"{k}: {MAPS[k][1]} (max {top:.3g} {MAPS[k][0]})", fontsize=8)
+                ax.set_title(f"{k}: max {top:.3g} {MAPS[k][0]}", fontsize=9)
             ax.set_xlim(*xe)
             ax.set_ylim(*ye)
             ax.tick_params(labelsize=7)
