@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _rheology, _shapes
+from . import _dem, _release, _rheology, _shapes
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -85,6 +85,44 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         vols.append(np.full(len(mesh), vol))
         vs.append(np.broadcast_to(np.asarray(b.get("velocity_m_s", [0.0] * dim), float), mesh.shape))
     return np.concatenate(xs), np.concatenate(vols), np.concatenate(vs)
+
+
+def terrain_of(cfg: dict) -> Terrain | None:
+    """The height-map boundary of a validated scene (``terrain.type`` != none), else None."""
+    if cfg["terrain.type"] == "none":
+        return None
+    dim = cfg["domain.dim"]
+    hs = np.asarray(cfg["terrain.heights_m"], float)
+    return Terrain(
+        origin=tuple(map(float, cfg["terrain.origin_m"])),
+        spacing=(float(cfg["terrain.spacing_m"]),) * (dim - 1),
+        heights=tuple(map(tuple, hs)) if hs.ndim == 2 else tuple(map(float, hs)),
+        kind=cfg["terrain.type"],
+        friction=float(cfg["terrain.friction"]),
+    )
+
+
+def _add_release(cfg: dict, terrain, x, vol0, v):
+    """The bodies' particles followed by the breach release's (``_release``), filled down to the
+    terrain (the domain floor without one); an empty release is an error."""
+    floor = float(cfg["domain.lo_m"][-1])
+    height = terrain.height if terrain is not None else (lambda xy: np.full(len(xy), floor))
+    boxes = [(b["lo_m"], b["hi_m"]) for b in cfg["bodies"]]
+    xr, vr, info = _release.seed_release(cfg, height, boxes)
+    if not len(xr):
+        raise SceneError(
+            f"release.pond_level_m = {cfg['release.pond_level_m']} is invalid: it lies below the terrain everywhere "
+            f"in release.region_map_m = {cfg['release.region_map_m']}, or no particle column (spacing "
+            f"{cfg['domain.cell_size_m'] / cfg['numerics.ppc']:g} m) has its centre in the region: nothing to release; "
+            "allowed: a pond level above the terrain somewhere in a region at least a particle spacing wide"
+        )
+    info["back_m"] = (xr.min(axis=0) - 0.5 * cfg["domain.cell_size_m"] / cfg["numerics.ppc"]).tolist()
+    return (
+        np.concatenate([x, xr]),
+        np.concatenate([vol0, vr]),
+        np.concatenate([v, np.zeros_like(xr)]),
+        info,
+    )
 
 
 @dataclasses.dataclass
@@ -222,7 +260,7 @@ def memory_estimate(cfg: dict) -> dict:
       plus, on the CPU backend, ``device_bytes``.
 
     Particles: the sum of the bodies' lattice counts (an upper bound: overlaps are seeded once)
-    plus a pipe inflow's pool."""
+    plus a pipe inflow's pool, plus a breach release's geometric volume / (h / ppc)^dim."""
     dim = cfg["domain.dim"]
     item = 8 if cfg["numerics.dtype"] == "float64" else 4
     dx = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
@@ -232,6 +270,11 @@ def memory_estimate(cfg: dict) -> dict:
         n += float(np.prod(counts))
     if cfg["inflow.point_m"] is not None:
         n += float(inflow_layout(cfg, dim)[2])
+    if cfg["release.region_map_m"] is not None:  # about one particle per dx^dim of pond
+        ter = terrain_of(cfg)
+        floor = float(cfg["domain.lo_m"][-1])
+        height = ter.height if ter is not None else (lambda xy: np.full(len(xy), floor))
+        n += _release.geometric_volume(cfg, height) / dx**dim
     nodes = float(np.prod(np.asarray(_grid_shape(cfg), float)))
     n_internal = len(_rheology.MODELS[cfg["material.model"]].internals)
     state_per_particle = (2 * dim + 2 * dim * dim + 3 + n_internal) * item + 2  # x v C tau J vol0 mu internal; bools
@@ -267,6 +310,10 @@ def build(cfg: dict) -> Setup:
     params = make_params(cfg, dim, dtype)
     rheology = make_rheology(cfg)
     x, vol0, v = seed_bodies(cfg)
+    terrain = terrain_of(cfg)
+    release = None
+    if cfg["release.region_map_m"] is not None:
+        x, vol0, v, release = _add_release(cfg, terrain, x, vol0, v)
     n_bodies = len(x)
     inflow = None
     if cfg["inflow.point_m"] is not None:
@@ -344,16 +391,6 @@ def build(cfg: dict) -> Setup:
         gate = Gate(tuple(cfg["gate.point_m"]), tuple(cfg["gate.normal"]))
     elif inflow is not None and cfg["inflow.aging_gate"]:
         gate = Gate(inflow.point, inflow.direction)
-    terrain = None
-    if cfg["terrain.type"] != "none":
-        hs = np.asarray(cfg["terrain.heights_m"], float)
-        terrain = Terrain(
-            origin=tuple(map(float, cfg["terrain.origin_m"])),
-            spacing=(float(cfg["terrain.spacing_m"]),) * (dim - 1),
-            heights=tuple(map(tuple, hs)) if hs.ndim == 2 else tuple(map(float, hs)),
-            kind=cfg["terrain.type"],
-            friction=float(cfg["terrain.friction"]),
-        )
     scene = Scene(
         dim=dim,
         h=float(h),
@@ -392,6 +429,8 @@ def build(cfg: dict) -> Setup:
     origin_r = cfg["output.runout_origin_m"]
     if math.isnan(origin_r):
         starts = [b["lo_m"][axis] for b in cfg["bodies"]]
+        if release is not None and release["particles"]:
+            starts.append(release["back_m"][axis])
         if inflow is not None:
             starts.append(inflow.point[axis])
         origin_r = float(min(starts))
@@ -403,6 +442,11 @@ def build(cfg: dict) -> Setup:
         runout_origin_m=origin_r,
         particle_spacing_m=h / cfg["numerics.ppc"],
     )
+    if release is not None:
+        info["release"] = {k: a for k, a in release.items() if k != "back_m"}
+    map_ = _dem.map_info(cfg)
+    if map_ is not None:
+        info["map"] = map_
     if inflow is not None:
         info.update(
             inflow_pool_particles=int(len(x) - n_bodies),

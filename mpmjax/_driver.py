@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _health, _metrics, plotting
+from . import _hazard, _health, _metrics, plotting
 from ._build import build, memory_estimate, start_warnings
 from ._schema import SceneError, load_scene
 from ._io import FrameWriter, _jsonable, atomic_write_text, config_hash, read_checkpoint, read_result
@@ -491,9 +491,13 @@ def _run_scene(
         t0 = time.perf_counter()
         # a pipe inflow's parked pool is stepped only once released: each frame steps the buffer prefix
         # that holds every particle active by its end (a few sizes, compiled here; _simulate.StagedAdvance)
-        advance = StagedAdvance(
-            sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n)
-        )
+        if cfg["output.hazard_maps"]:
+            # hazard maps sampled inside the compiled frame, an extra carry next to the state (_hazard)
+            advance = _hazard.HazardAdvance(sc, setup.state, setup.params, _hazard.HazardGrid.of(sc, cfg))
+        else:
+            advance = StagedAdvance(
+                sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n)
+            )
         first_frame = int(ckpt[1]) if ckpt is not None else 0
         sizes = advance.sizes(first_frame)
         for n in sizes:
@@ -542,12 +546,16 @@ def _run_scene(
                     "the free-surface runout (docs/output.md 'Runout'); its runout series cannot be continued: rerun "
                     "without --resume"
                 )
+            if isinstance(advance, _hazard.HazardAdvance):
+                advance.restore(acc["hazard"])
             log(f"resuming {out} from the checkpoint at frame {done}/{sc.n_frames} (t = {float(state.t):.4g} s)")
         last_ckpt = done if ckpt is not None else -1
         meta_base = dict(scene_source=source, overrides=overrides, cfg=_jsonable(cfg), code_version=__version__)
 
         def write_checkpoint(st, frame):
             nonlocal last_ckpt
+            if isinstance(advance, _hazard.HazardAdvance):
+                acc["hazard"] = advance.to_json()
             _write_ckpt(ckpt_path, st, frame, chash, dict(meta_base, acc=acc))
             last_ckpt = frame
 
@@ -561,6 +569,8 @@ def _run_scene(
             "dt_s": sc.dt,
             "t_end_s": sc.t_end,
             "warnings": warnings,
+            # map placement (scene = map - map_origin_m) and the breach release's volumes (docs/output.md)
+            **{k: info[k] for k in ("map", "release") if k in info},
         }
     except KeyboardInterrupt as e:
         sig.restore()
@@ -795,12 +805,19 @@ def _finish(out, setup, cfg, state, acc, advance, compile_s, base_summary, anima
         summary["warnings"] = list(summary.get("warnings", [])) + [deposit_warning]
     res = read_result(out / "result.h5")
     written = ["result.h5", "result.xdmf", "summary.json", "result.png"]
+    hazard = None
+    if isinstance(advance, _hazard.HazardAdvance):  # output.hazard_maps (mpmjax._hazard, docs/output.md)
+        hazard = _hazard.final_maps(advance.maps, state, advance.grid)
+        summary["hazard"] = _hazard.write_hazard(out, cfg, advance.grid, hazard)
+        written += summary["hazard"]["files"] + ["hazard_maps.png"]
     if sc.dim == 3:
         # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
         summary.update(_metrics.plan_view_summary(res, out / "plan_view.h5"))
         written.insert(3, "plan_view.h5")
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     plotting.plot_result(out / "result.png", res, summary, cfg["name"])
+    if hazard is not None:
+        plotting.plot_hazard_maps(out / "hazard_maps.png", cfg, advance.grid, hazard, summary)
     if sc.dim == 3:
         plotting.plot_3d_overview(res, out / "plan_view.h5", summary, out)
         written += ["plan_view.png", "sections.png"]

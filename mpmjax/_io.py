@@ -130,6 +130,16 @@ class FrameWriter:
         a["units_json"] = json.dumps(units_of(s.scene.rheology))
         a["dtype"] = s.scene.dtype  # the run's precision: the float datasets are stored in it
         a["complete"] = False
+        a["runout_origin_m"] = float(s.info["runout_origin_m"])
+        # where the run lies on the map (scene = map - map_origin_m; docs/output.md) and its breach release
+        if "map" in s.info:
+            m = s.info["map"]
+            a["map_json"] = json.dumps(_jsonable(m))
+            a["map_origin_m"] = np.asarray(m["map_origin_m"], float)
+            a["crs_wkt"] = m["crs_wkt"] or ""
+            a["epsg"] = -1 if m["epsg"] is None else int(m["epsg"])
+        if "release" in s.info:
+            a["release_json"] = json.dumps(_jsonable(s.info["release"]))
         st = s.state
         p = self.f.create_group("particles")
         p["vol0_m3"] = np.asarray(st.vol0)

@@ -90,6 +90,7 @@ class Terrain:
         for a in range(xy.shape[1]):
             e = np.zeros(xy.shape[1])
             e[a] = 0.5 * self.spacing[a]
+            e = xp.asarray(e, dtype=xy.dtype)  # a float64 numpy offset would promote float32 positions under x64
             d = (self.height(xy + e[None, :], xp) - self.height(xy - e[None, :], xp)) / self.spacing[a]
             comps.append(-d)
         comps.append(xp.ones_like(comps[0]))

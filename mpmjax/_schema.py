@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from . import _rheology, _shapes
+from . import _dem, _release, _rheology, _shapes
 from ._boundary import inflow_layout
 from ._scene import FACE_KINDS, WALL_KINDS
 
@@ -181,7 +181,11 @@ _TAIL: dict[str, Key] = {
         float, 0.0, "deg", "3D only: tilt towards +y.", lo=-89.0, hi=89.0, only_3d=True
     ),
     "bodies": Key(
-        "table-list", _REQ, "-", 'Material blocks: tables with type = "box", lo_m, hi_m and optional velocity_m_s.'
+        "table-list",
+        [],
+        "-",
+        'Material blocks: tables with type = "box", lo_m, hi_m and optional velocity_m_s. At least one body, an '
+        "inflow or a release is required.",
     ),
     "gate.point_m": Key("vec", None, "m", "Aging gate: a point on the plane (optional)."),
     "gate.normal": Key("vec", None, "-", "Aging gate: normal; material ages once (x - point).normal > 0."),
@@ -234,9 +238,86 @@ _TAIL: dict[str, Key] = {
         float, 1.0, "m", "Terrain: sample spacing along each horizontal axis.", lo=0.0, lo_open=True
     ),
     "terrain.friction": Key(float, 0.0, "-", "Terrain: Coulomb friction coefficient (type coulomb).", lo=0.0, hi=10.0),
+    "terrain.dem": Key(
+        str,
+        "",
+        "-",
+        "DEM raster of the terrain elevation z_b [m], relative to the scene file (3D only): an ESRI ASCII grid "
+        "(.asc, CRS from a .prj beside it) or a GeoTIFF (.tif, read with rasterio). Pixel values are elevations at "
+        "pixel centres; no-data pixels under the domain are an error. Alternative to terrain.heights_m and "
+        "terrain.csv: it sets the samples, terrain.origin_m and terrain.spacing_m. Scene coordinates = map "
+        "coordinates - terrain.map_origin_m; z is the elevation in both.",
+    ),
+    "terrain.crop_map_m": Key(
+        "vec",
+        None,
+        "m",
+        "DEM crop window [xmin, ymin, xmax, ymax] in map coordinates (must lie inside the raster; the domain must "
+        "lie inside it); default: the whole raster.",
+    ),
+    "terrain.map_origin_m": Key(
+        "vec",
+        None,
+        "m",
+        "Map coordinates (x, y) of the scene origin: scene = map - map_origin. Default with terrain.dem: the "
+        "lower-left corner of the crop window, or of the raster; without a DEM: (0, 0) (map = scene).",
+    ),
+    "terrain.resample": Key(
+        str,
+        "none",
+        "-",
+        "DEM resampling: none (samples at the pixel centres; square pixels needed) or bilinear (the raster "
+        "interpolated bilinearly onto the grid nodes of the domain, spacing domain.cell_size_m).",
+        choices=("none", "bilinear"),
+    ),
+    "terrain.crs": Key(
+        str,
+        "",
+        "-",
+        "CRS of the DEM ('EPSG:32719' or WKT) for a raster that has none (an .asc without .prj); must be "
+        "projected (metres). Default: the raster's own.",
+    ),
+    "release.region_map_m": Key(
+        "region",
+        None,
+        "m",
+        "Breach release: the pond's plan-view region in map coordinates, a box [xmin, ymin, xmax, ymax] or a "
+        "polygon [[x, y], ...] (3D), or [xmin, xmax] (2D). Filled from the terrain (or the domain floor) up to "
+        "release.pond_level_m.",
+    ),
+    "release.pond_level_m": Key(
+        float, None, "m", "Breach release: the pond surface elevation z (needed with release.region_map_m)."
+    ),
     "output.runout_axis": Key(int, 0, "-", "Axis along which runout is measured.", lo=0, hi=2),
     "output.runout_origin_m": Key(
         float, math.nan, "m", "Origin of runout; default: the back (min) of the material along runout_axis at t = 0."
+    ),
+    "output.hazard_maps": Key(
+        bool,
+        False,
+        "-",
+        "Hazard maps (3D: plan-view rasters; 2D: profiles along x): maximum flow depth, maximum speed, maximum "
+        "depth x speed and arrival time over the whole run, and the final deposit thickness (docs/output.md).",
+    ),
+    "output.hazard_format": Key(
+        str,
+        "auto",
+        "-",
+        "Hazard raster format: geotiff (needs a CRS), ascii (ESRI ASCII grid), or auto (GeoTIFF when the scene "
+        "has a CRS, else ESRI ASCII).",
+        choices=("auto", "geotiff", "ascii"),
+    ),
+    "output.hazard_every_steps": Key(
+        int, 1, "-", "Hazard maps: accumulate every k-th time step (1: every step).", lo=1, hi=1000000
+    ),
+    "output.hazard_depth_m": Key(
+        float,
+        0.1,
+        "m",
+        "Hazard maps: flow depth above which a bin is wet: the arrival time is the first time the depth exceeds "
+        "it, and speeds count only where it is exceeded.",
+        lo=0.0,
+        lo_open=True,
     ),
 }
 
@@ -347,7 +428,8 @@ def _check(key: str, val: Any, spec: Key, dim: int):
         raise SceneError(f"{key} = {_show(val)} is invalid: {why} ({spec.doc} Unit: {spec.unit})")
 
     if spec.type == "vec":
-        n = dim - 1 if key == "terrain.origin_m" else dim  # horizontal axes only
+        # horizontal axes only: terrain origins; a crop window: [xmin, ymin, xmax, ymax]
+        n = {"terrain.origin_m": dim - 1, "terrain.map_origin_m": dim - 1, "terrain.crop_map_m": 4}.get(key, dim)
         if not isinstance(val, (list, tuple)) or not all(
             isinstance(a, (int, float)) and not isinstance(a, bool) for a in val
         ):
@@ -361,6 +443,11 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     if key == "terrain.heights_m":
         arr = _terrain_array(val, dim, lambda why: bad(why))
         return arr.tolist()
+    if spec.type == "region":
+        why = _release.region_error(_plain(val), dim)
+        if why:
+            bad(why)
+        return _plain(val)
     if spec.type == "table-list":
         if not isinstance(val, list) or not all(isinstance(a, dict) for a in val):
             bad("expected a list of tables ([[...]] in TOML)")
@@ -468,14 +555,28 @@ def _terrain_array(val, dim: int, bad) -> np.ndarray:
     return arr
 
 
-def _validate_terrain(out: dict, dim: int, lo):
+_DEM_ONLY = ("terrain.crop_map_m", "terrain.resample", "terrain.crs")
+
+
+def _validate_terrain(out: dict, dim: int, lo, flat: dict):
     kind = out["terrain.type"]
     if kind == "none":
+        given = [k for k in ("terrain.dem", *_DEM_ONLY) if k in flat]
+        if given:
+            raise SceneError(f"{given[0]} = {_show(flat[given[0]])} is invalid with terrain.type = 'none'; allowed: "
+                             "set terrain.type (noslip, slip or coulomb) to use a DEM")
         return
-    if out["terrain.heights_m"] is None and not out["terrain.csv"]:
-        raise SceneError(f"terrain.type = {kind!r} needs terrain.heights_m or terrain.csv")
-    if out["terrain.heights_m"] is not None and out["terrain.csv"]:
-        raise SceneError("terrain.heights_m and terrain.csv are alternatives; give one")
+    sources = [k for k in ("terrain.heights_m", "terrain.csv", "terrain.dem") if out[k]]
+    if not sources:
+        raise SceneError(f"terrain.type = {kind!r} needs terrain.heights_m or terrain.csv (or terrain.dem)")
+    if len(sources) > 1:
+        raise SceneError(f"{' and '.join(sources)} are alternatives; give one")
+    if out["terrain.dem"]:
+        _validate_dem(out, dim, flat)
+        return
+    given = [k for k in _DEM_ONLY if k in flat]
+    if given:
+        raise SceneError(f"{given[0]} = {_show(flat[given[0]])} is invalid without terrain.dem: it describes a DEM")
     if out["terrain.csv"]:
         path = Path(out["terrain.csv"])
         try:
@@ -492,6 +593,53 @@ def _validate_terrain(out: dict, dim: int, lo):
         out["terrain.csv"] = str(path)
     if out["terrain.origin_m"] is None:
         out["terrain.origin_m"] = [float(a) for a in lo[: dim - 1]]
+
+
+def _validate_dem(out: dict, dim: int, flat: dict):
+    """Read ``terrain.dem`` (``_dem.terrain_samples``) and fill the terrain and map keys from it."""
+    if dim != 3:
+        raise SceneError(
+            f"terrain.dem = {out['terrain.dem']!r} is invalid in a 2D scene (domain.dim = 2): a DEM is a plan-view "
+            "grid; allowed: a 3D scene, or a 2D profile in terrain.csv or terrain.heights_m"
+        )
+    derived = [k for k in ("terrain.origin_m", "terrain.spacing_m") if k in flat]
+    if derived:
+        raise SceneError(
+            f"{derived[0]} = {_show(flat[derived[0]])} is invalid with terrain.dem: the DEM sets it (the map origin "
+            "is terrain.map_origin_m)"
+        )
+    try:
+        got = _dem.terrain_samples(out, Path(out["terrain.dem"]))
+    except _dem._Error as e:
+        raise SceneError(f"terrain.dem: {e}") from None
+    out.update({k: v for k, v in got.items() if k.startswith("terrain.")})
+
+
+def _validate_release(out: dict, dim: int, lo, hi, flat: dict):
+    region, pond = out["release.region_map_m"], out["release.pond_level_m"]
+    if region is None:
+        if pond is not None:
+            raise SceneError(
+                f"release.pond_level_m = {pond} is invalid without release.region_map_m (the pond's region)"
+            )
+        return
+    if pond is None:
+        raise SceneError("release.region_map_m needs release.pond_level_m, the pond surface elevation z [m]")
+    poly = _release.region_polygon(region, out["terrain.map_origin_m"], dim)
+    pts = poly.reshape(-1, dim - 1)
+    tol = 1e-9 * out["domain.cell_size_m"]
+    if np.any(pts < lo[: dim - 1] - tol) or np.any(pts > hi[: dim - 1] + tol):
+        origin = out["terrain.map_origin_m"] or [0.0] * (dim - 1)
+        raise SceneError(
+            f"release.region_map_m = {_show(region)} is not inside the domain's plan: in scene coordinates "
+            f"(map - terrain.map_origin_m = {_show(origin)}) it spans [{_plain(pts.min(axis=0))}, "
+            f"{_plain(pts.max(axis=0))}] m; the domain spans [{_plain(lo[: dim - 1])}, {_plain(hi[: dim - 1])}] m"
+        )
+    if not lo[-1] < pond <= hi[-1]:
+        raise SceneError(
+            f"release.pond_level_m = {pond} is invalid: allowed range: > domain.lo_m z = {lo[-1]} and <= domain.hi_m "
+            f"z = {hi[-1]} (m; the pond must lie inside the domain)"
+        )
 
 
 def _validate_inflow(out: dict, dim: int, lo, hi, h):
@@ -628,8 +776,10 @@ def validate(raw: dict) -> dict:
                 "allowed only in 3D scenes (domain.dim = 3); remove it"
             )
     _validate_material(flat, out)
-    if not out["bodies"] and out["inflow.point_m"] is None:
-        raise SceneError("bodies = [] is invalid: at least one material body (or an inflow) is required")
+    if not out["bodies"] and out["inflow.point_m"] is None and out["release.region_map_m"] is None:
+        raise SceneError(
+            "bodies = [] is invalid: at least one material body (or an inflow, or a release.region_map_m) is required"
+        )
     n_particles = 0
     for i, b in enumerate(out["bodies"]):
         extra = set(b) - {"type", "lo_m", "hi_m", "velocity_m_s"}
@@ -685,7 +835,18 @@ def validate(raw: dict) -> dict:
             "length is a finite, normal float"
         )
     _validate_inflow(out, dim, lo, hi, h)
-    _validate_terrain(out, dim, lo)
+    _validate_terrain(out, dim, lo, flat)
+    if out["output.hazard_maps"] and out["output.hazard_format"] == "geotiff" and not out["terrain.crs"]:
+        raise SceneError(
+            "output.hazard_format = 'geotiff' needs a CRS, and the scene has none"
+            + (
+                f" (the DEM {out['terrain.dem']} has no CRS in the file and no .prj beside it)"
+                if out["terrain.dem"]
+                else " (no terrain.dem)"
+            )
+            + "; allowed: set terrain.crs (e.g. 'EPSG:32719') with a DEM, or output.hazard_format = 'ascii' (or 'auto')"
+        )
+    _validate_release(out, dim, lo, hi, flat)
     if out["output.runout_axis"] >= dim:
         raise SceneError(
             f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1} "
@@ -740,10 +901,11 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
         node[parts[-1]] = val
     _drop_switched_law_keys(raw, file_model, file_mat, {k for k, _ in items})
     ter = raw.get("terrain")
-    if isinstance(ter, dict) and isinstance(ter.get("csv"), str) and ter["csv"]:
-        if "\x00" in ter["csv"]:
-            raise SceneError(f"terrain.csv = {ter['csv']!r}: a file path cannot contain a NUL character")
-        ter["csv"] = str((path.parent / ter["csv"]).resolve()) if not Path(ter["csv"]).is_absolute() else ter["csv"]
+    for k in ("csv", "dem"):
+        if isinstance(ter, dict) and isinstance(ter.get(k), str) and ter[k]:
+            if "\x00" in ter[k]:
+                raise SceneError(f"terrain.{k} = {ter[k]!r}: a file path cannot contain a NUL character")
+            ter[k] = str((path.parent / ter[k]).resolve()) if not Path(ter[k]).is_absolute() else ter[k]
     return validate(raw)
 
 
