@@ -143,7 +143,7 @@ def test_slump_at_one_particle_per_cell_is_packed_as_its_J_says_with_the_check()
     and the ~10 interior bins average to about +-0.08; 1.15 and 1 +- 0.1 separate the two states
     (measured 1.28 and 0.93) with room for that.  The front itself is not asserted for ppc 1:
     with the check it creeps on past the exact front (+1 / +6 / +8 % at 8 / 16 / 32 cells),
-    a second ppc 1 defect (a stress checkerboard the nodal forces do not see)."""
+    a second ppc 1 defect (particle-to-particle stress noise at the yield stress at rest)."""
     h = 0.025
     x0, J0, v0, front0, x_f, lost0 = _slump(h, 1, 0.0)
     x5, J5, v5, _, _, lost5 = _slump(h, 1, 0.05)
