@@ -4,11 +4,12 @@
     PYTHONPATH=. python docs/bench/ppc_probe.py lab 0.02 1,2,3 '{}'
 
 One JSON line per run.  slump: the scene of ``mpmjax converge --case slump`` with the overrides,
-its front per frame, the error against the exact x_f, and the overpacking of the deposit: Sigma J V0
+its front per frame, the error against the exact x_f, and the overpacking of the deposit at the end: Sigma J V0
 over the area under the free surface (top particle + half a spacing in bins of 2h; about 0.93 for a
 deposit packed as its J says, because the top of a sloping bin over-reads its mean height) and the
-volume per area J phi in interior bins of 2h (1 for a packing that matches J).  lab: the runout
-of ``dambreak-lab`` at 15 s (``studies.converge.run_one``).  CPU times are the compiled loop's.
+volume per area in interior bins of 2h per frame (``studies.converge.deposit_packing``: 1 for a
+packing that matches J).  lab: ``dambreak-lab`` to 15 s, the same figures but the exact front.
+CPU times are the compiled loop's.
 """
 
 import json
@@ -32,9 +33,11 @@ def area_ratio(x, J, vol0, h, ppc):
     return float((J * vol0).sum() / (np.nansum(top) * w))
 
 
-def slump(h, ppc, extra, n_frames=12):
-    ov = {"domain.cell_size_m": h, "numerics.ppc": ppc, "time.n_frames": n_frames, **extra}
-    s = build(cv._config("slump", ov))
+def probe(case, h, ppc, extra, n_frames=12):
+    """One run of ``case`` (``slump`` or ``lab``) at cell size h [m] and ppc, with the overrides."""
+    t_end = {"slump": 6.0, "lab": 15.0}[case]
+    ov = {"time.t_end_s": t_end, "domain.cell_size_m": h, "numerics.ppc": ppc, "time.n_frames": n_frames, **extra}
+    s = build(cv._config(case, ov))
     sc = s.scene
     compiled = jax.jit(lambda st, p: simulate(sc, st, p)).lower(s.state, s.params).compile()
     c0 = time.process_time()
@@ -45,30 +48,24 @@ def slump(h, ppc, extra, n_frames=12):
     vol0, act = np.asarray(final.vol0), np.asarray(final.active, bool)
     fronts = [gauge.front(np.asarray(fr.x[i]), vol0, act) for i in range(n_frames)]
     x, J = np.asarray(final.x), np.asarray(final.J)
-    x_f, _ = cv._slump_exact(float(vol0.sum()))
     tau = np.asarray(final.tau)
-    tau_ratio = np.sqrt(0.5 * np.sum(tau * tau, axis=(1, 2))) / cv.SLUMP_TAU_Y
-    return {
-        "case": "slump", "h": h, "ppc": ppc, "overrides": extra, "cpu_s": round(cpu, 2), "steps": sc.n_steps,
+    rec = {
+        "case": case, "h": h, "ppc": ppc, "overrides": extra, "cpu_s": round(cpu, 2), "steps": sc.n_steps,
         "n_lost": int(final.n_lost), "front_m": round(fronts[-1], 4),
-        "front_err_pct": round(100 * (fronts[-1] - x_f) / x_f, 2),
         "fronts_m": [round(f, 3) for f in fronts],
         "area_ratio": round(area_ratio(x, J, vol0, h, ppc), 3),
-        "interior_packing": [round(cv.deposit_packing(np.asarray(fr.x[i]), np.asarray(fr.J[i]), vol0, h), 3) for i in range(n_frames)],
-        "tau_over_tau_y_mean": round(float(tau_ratio.mean()), 2),
+        "deposit_packing": [round(cv.deposit_packing(np.asarray(fr.x[i]), np.asarray(fr.J[i]), vol0, h), 3) for i in range(n_frames)],
         "max_speed_m_s": float(np.max(np.abs(np.asarray(final.v)))),
     }  # fmt: skip
-
-
-def lab(h, ppc, extra):
-    ov = {"time.t_end_s": 15.0, "time.n_frames": 15, "domain.cell_size_m": h, "numerics.ppc": ppc, **extra}
-    r = cv.run_one("lab", ov)
-    return {"case": "lab", "h": h, "ppc": ppc, "overrides": extra, "status": r["status"],
-            "runout_m": r.get("runout_m"), "farthest_m": r.get("runout_farthest_m"), "cpu_s": r.get("cpu_s")}  # fmt: skip
+    if case == "slump":
+        x_f, _ = cv._slump_exact(float(vol0.sum()))
+        tau_ratio = np.sqrt(0.5 * np.sum(tau * tau, axis=(1, 2))) / cv.SLUMP_TAU_Y
+        rec.update(front_err_pct=round(100 * (fronts[-1] - x_f) / x_f, 2), tau_over_tau_y_mean=round(float(tau_ratio.mean()), 2))
+    return rec
 
 
 if __name__ == "__main__":
     case, h = sys.argv[1], float(sys.argv[2])
     extra = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
     for p in (int(a) for a in sys.argv[3].split(",")):
-        print(json.dumps(slump(h, p, extra) if case == "slump" else lab(h, p, extra)), flush=True)
+        print(json.dumps(probe(case, h, p, extra)), flush=True)
