@@ -54,13 +54,18 @@ def probe(case, h, ppc, extra, n_frames=12):
         "n_lost": int(final.n_lost), "front_m": round(fronts[-1], 4),
         "fronts_m": [round(f, 3) for f in fronts],
         "area_ratio": round(area_ratio(x, J, vol0, h, ppc), 3),
-        "deposit_packing": [round(cv.deposit_packing(np.asarray(fr.x[i]), np.asarray(fr.J[i]), vol0, h), 3) for i in range(n_frames)],
+        "deposit_packing": [
+            round(cv.deposit_packing(np.asarray(fr.x[i]), np.asarray(fr.J[i]), vol0, h), 3) for i in range(n_frames)
+        ],
         "max_speed_m_s": float(np.max(np.abs(np.asarray(final.v)))),
     }  # fmt: skip
     if case == "slump":
         x_f, _ = cv._slump_exact(float(vol0.sum()))
         tau_ratio = np.sqrt(0.5 * np.sum(tau * tau, axis=(1, 2))) / cv.SLUMP_TAU_Y
-        rec.update(front_err_pct=round(100 * (fronts[-1] - x_f) / x_f, 2), tau_over_tau_y_mean=round(float(tau_ratio.mean()), 2))
+        rec.update(
+            front_err_pct=round(100 * (fronts[-1] - x_f) / x_f, 2),
+            tau_over_tau_y_mean=round(float(tau_ratio.mean()), 2),
+        )
     return rec
 
 
