@@ -205,6 +205,25 @@ def _exact_front_by_definition(x_f: float, k: float, h: float) -> float:
     return float(xs[i] + (xs[1] - xs[0]) * (env[i] - thr) / (env[i] - env[i + 1]))
 
 
+def deposit_packing(x, J, vol0, cell_m: float) -> float:
+    """How densely a 2D deposit's particles are packed against what their J says [-]: the volume
+    per area, Sigma J V0 / bin area, averaged over square bins of two cells whose left, right and
+    upper neighbours hold particles (the interior and the bottom row; bins at the free surface
+    and the tip are partly empty and left out).  1 where the particles are spaced as their J
+    says; above 1 they have closed up without J registering it (overpacking,
+    docs/bench/ppc_probe.md).  ``x`` (n, 2) [m], ``J`` (n,), ``vol0`` (n,) [m^2], active only."""
+    b = 2.0 * cell_m
+    ix, iy = np.floor(x[:, 0] / b).astype(int), np.floor(x[:, 1] / b).astype(int)
+    vol = np.zeros((ix.max() + 2, iy.max() + 2))
+    vol_j = np.zeros_like(vol)
+    np.add.at(vol, (ix, iy), vol0)
+    np.add.at(vol_j, (ix, iy), vol0 * J)
+    occ = vol > 0
+    inner = np.zeros_like(occ)
+    inner[1:-1, :-1] = occ[1:-1, :-1] & occ[2:, :-1] & occ[:-2, :-1] & occ[1:-1, 1:]
+    return float(np.mean(vol_j[inner] / b**2))
+
+
 def profile(case: str, x, vol0, active, x_hi: float):
     """(stations [m], height [m]) of the final deposit: rest-volume kernel profile with the
     case's fixed bandwidth (numpy; the same definition as ``mpmjax.height_profile``)."""
