@@ -112,7 +112,10 @@ def cmd_bench(args) -> int:
 
 def cmd_study(args) -> int:
     try:
-        return run_study(args.name, Path(args.out))
+        options = {"measures": tuple(args.measure)} if args.name == "physical" and args.measure else {}
+        if args.measure and args.name != "physical":
+            return fail(f"--measure {args.measure[0]} is invalid: only for study physical")
+        return run_study(args.name, Path(args.out), **options)
     except ValueError as e:
         return fail(str(e))
 
@@ -184,6 +187,12 @@ def main(argv=None) -> int:
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")
+    pst.add_argument(
+        "--measure",
+        action="append",
+        choices=("standard", "thesis"),
+        help="physical: the shear measure(s) to run (default both)",
+    )
     pst.set_defaults(fn=cmd_study)
     pc = sub.add_parser("calibrate", help="fit material parameters to measured height profiles (optax, gradients)")
     calcli.add_calibrate_arguments(pc)
