@@ -36,7 +36,7 @@ def test_default_scene_and_mpm88_entries_are_kept(doc):
     r = doc["results"]
     assert set(r) == {"default-scene", "mpm88-equivalent"}
     assert r["mpm88-equivalent"]["n_particles"] == 8192
-    assert r["default-scene"]["n_particles"] == 1600
+    assert r["default-scene"]["n_particles"] == 3600  # 0.2 m block, h = 0.01 m, ppc 3
     for e in r.values():
         for k in ("best_wall_s", "compile_s", "particle_steps_per_s"):
             assert _pos(e[k]), (k, e[k])

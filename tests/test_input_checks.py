@@ -80,7 +80,7 @@ def test_two_overlapping_boxes_hold_the_mass_of_their_union():
     assert mass == pytest.approx(0.06 * 1850.0, rel=1e-6)  # float32 volumes
     x = np.asarray(setup.state.x, float)
     assert len(np.unique(np.round(x / 1e-6), axis=0)) == len(x)  # no particle seeded twice
-    assert setup.scene.n_particles == 1600 + 800
+    assert setup.scene.n_particles == 3600 + 1800  # ppc 3: (0.2 / (0.01 / 3))^2 + the half not overlapped
 
 
 def test_builtin_scenes_particle_counts_are_unchanged():

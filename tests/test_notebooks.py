@@ -112,7 +112,7 @@ def test_api_examples(monkeypatch):
         import matplotlib.pyplot as plt
 
         plt.close("all")
-    assert ns["sc"].n_particles == 100 and int(ns["final"].n_lost) == 0
+    assert ns["sc"].n_particles == 225 and int(ns["final"].n_lost) == 0
     # P2G conserves mass, the kernel profile integrates to the released 0.04 m^2
     assert float(ns["mass"].sum()) == pytest.approx(1850.0 * 0.04, rel=1e-5)
     assert float(np.trapezoid(np.asarray(ns["h"]), np.asarray(ns["xs"]))) == pytest.approx(0.04, rel=1e-4)
