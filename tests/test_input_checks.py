@@ -119,6 +119,7 @@ def test_property_seeded_volume_is_the_union_volume(case):
     raw = small(dim)
     raw["domain"]["hi_m"] = [n * dx] * dim
     raw["domain"]["cell_size_m"] = 2 * dx
+    raw["numerics"] = {"ppc": 2}  # the lattice spacing dx is half a cell
     raw["bodies"] = [{"type": "box", "lo_m": [a * dx for a in lo], "hi_m": [b * dx for b in hi]} for lo, hi in boxes]
     cfg = mpmjax.validate(raw)
     x, vol, _ = seed_bodies(cfg)
