@@ -32,3 +32,23 @@ def tree_allclose(a, b, rtol=1e-7, atol=0.0):
 @pytest.fixture
 def allclose():
     return tree_allclose
+
+
+def stub_result_pictures(mp: pytest.MonkeyPatch) -> None:
+    """``run_scene`` without its pictures (result.png, and plan_view.png / sections.png in 3D).
+
+    For tests that check a run's numbers and files other than the pictures: drawing them is a
+    large part of a coarse CI run (``tests/test_records.py``: 105 s of 266 s CPU in
+    ``plotting.plot_result``, 18 runs).  Every kind of picture is still drawn by the suite:
+    ``tests/test_builtin_scenes.py`` runs every built-in dam break and ``tests/test_inflow.py`` the
+    pipe scenes through ``run_scene`` with pictures, and ``tests/test_plotting.py`` checks them."""
+    from mpmjax import plotting
+
+    mp.setattr(plotting, "plot_result", lambda *a, **k: None)
+    mp.setattr(plotting, "plot_3d_overview", lambda *a, **k: [])
+
+
+@pytest.fixture
+def no_result_pictures(monkeypatch):
+    """``stub_result_pictures`` for one test."""
+    stub_result_pictures(monkeypatch)

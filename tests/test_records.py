@@ -122,7 +122,7 @@ def _check_run(name, run, cfg):
     assert r[-1] > r[0] + h, (name, r)  # it flows
 
 
-def test_records_ci_table_has_every_row(tmp_path):
+def test_records_ci_table_has_every_row(tmp_path, no_result_pictures):
     doc = records.run_records([], "ci", tmp_path)
     on_disk = json.loads((tmp_path / "records.json").read_text())
     assert on_disk["rows"] == json.loads(json.dumps(doc["rows"]))

@@ -18,6 +18,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import stub_result_pictures
 
 import mpmjax
 from mpmjax import cli
@@ -48,6 +49,15 @@ def _same_summary(a, b):
     sa, sb = (json.loads((p / "summary.json").read_text()) for p in (a, b))
     timing = {"wall_s", "compile_s", "particle_steps_per_s"}
     assert {k: v for k, v in sa.items() if k not in timing} == {k: v for k, v in sb.items() if k not in timing}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _no_pictures():
+    """The in-process runs here compare result.h5 and summary.json only: no result.png (the
+    command-line runs in subprocesses still draw theirs)."""
+    with pytest.MonkeyPatch.context() as mp:
+        stub_result_pictures(mp)
+        yield
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ import h5py
 import jax
 import numpy as np
 import pytest
+from conftest import stub_result_pictures
 
 import mpmjax
 from mpmjax import _driver, _simulate
@@ -69,10 +70,14 @@ def pour(pour_file):
 
 
 def _run(pour_file, out, staged, **kw):
+    """run_scene with the test's stage size; the results are compared as result.h5 arrays, so the
+    pictures are not drawn (conftest.stub_result_pictures)."""
     old = _simulate.MIN_STAGE
     _simulate.MIN_STAGE = MIN
     try:
-        return mpmjax.run_scene(str(pour_file), out, [], quiet=True, staged=staged, **kw)
+        with pytest.MonkeyPatch.context() as mp:
+            stub_result_pictures(mp)
+            return mpmjax.run_scene(str(pour_file), out, [], quiet=True, staged=staged, **kw)
     finally:
         _simulate.MIN_STAGE = old
 

@@ -107,9 +107,72 @@ def test_twin_fits_from_above_and_below_reach_the_same_floor(twin):
 # it here (as if measured on a rheometer): fitted together from profiles, mu0 and lambda0 trade
 # off along a valley (docs/calibration.md, "Numerical uncertainty").
 ML_TRUTH = {"mu0": 5.5, "lambda0": 1.2}
-ML_TIME = ["time.t_end_s=0.6"]
 
 
+def _multilevel_twin(tmp_path, capsys, times_s, max_iter, refine_max_iter):
+    """Twin data at h = 0.015 m (truth ML_TRUTH, 1 mm seeded noise, profiles at ``times_s``), fitted
+    through the CLI with ``--levels 0.03,0.015`` (mu0 free, lambda0 fixed at the truth), and the
+    assertions of both tests below (their docstrings say why)."""
+    import json
+
+    from calibration.data import write_profiles_csv
+    from calibration.synthetic import synthetic_profiles
+    from mpmjax.cli import main
+
+    truth = ML_TRUTH["mu0"]
+    mat = [f"material.mu0_pa_s={truth}", f"material.lambda0={ML_TRUTH['lambda0']}"]
+    profs, _ = synthetic_profiles(
+        TWIN, [f"time.t_end_s={times_s[-1]}", *mat, "domain.cell_size_m=0.015"], times_s, np.linspace(0.0, 0.9, 46),
+        sigma_m=0.001, seed=5, bandwidth_m=0.04,
+    )
+    data = tmp_path / "twin.csv"
+    write_profiles_csv(data, profs, "SYNTHETIC twin (test): h = 0.015 m, mu0 = 5.5, lambda0 = 1.2")
+    out = tmp_path / "fit"
+    args = ["calibrate", str(data), "--scene", TWIN, "--fit", "mu0", "--init", "mu0=9",
+            "--init", f"lambda0={ML_TRUTH['lambda0']}", "--bandwidth-m", "0.04", "--levels", "0.03,0.015",
+            "--max-iter", str(max_iter), "--refine-max-iter", str(refine_max_iter), "--rtol", "1e-3",
+            "--patience", "2", "--out", str(out)]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    doc = json.loads((out / "fit.json").read_text())
+    coarse, fine = (lv["params"]["mu0"] for lv in doc["levels"])
+    stat, num, tot = (doc[k]["mu0"] for k in ("std_statistical", "std_numerical", "std"))
+    print(f"\nmultilevel twin: mu0 coarse {coarse:.4g}, fine {fine:.4g} (truth {truth}); std statistical "
+          f"{stat:.3g}, numerical {num:.3g}, total {tot:.3g}; losses {[lv['loss_final'] for lv in doc['levels']]}")
+    # the bookkeeping: the fitted value is the fine level's, std_numerical the shift between the
+    # levels and std their quadrature sum; the summary and the figure carry the numerical std
+    assert doc["params"]["mu0"] == fine and [lv["cell_size_m"] for lv in doc["levels"]] == [0.03, 0.015]
+    assert num == pytest.approx(abs(fine - coarse)) and tot == pytest.approx(np.hypot(num, stat))
+    assert f"numerical {num:.3g} from the shift" in err and "Richardson: mu0 not extrapolated" in err
+    assert "domain.cell_size_m=0.015" in doc["scene_overrides"]
+    assert (out / "fit_profiles.png").stat().st_size > 0
+    # the physics and statistics (issue 15 item 1 acceptance)
+    assert abs(fine / truth - 1) < 0.05, (coarse, fine)
+    assert abs(fine - truth) <= 2 * tot or "mu0" in doc["poorly_identified"]
+    assert num > 5 * stat and abs(coarse - truth) > 2 * stat
+    assert doc["levels"][1]["loss_final"] < 1.5 < doc["levels"][0]["loss_final"]
+
+
+def test_multilevel_twin_mu0_with_a_true_total_error_bar_ci(tmp_path, capsys):
+    """CI size of the test below (issue 15 item 1): the same twin and fit through the CLI, cut to
+    the first 0.3 s (profiles at 0.15 and 0.3 s: half the steps) and to 4 + 2 iterations (coarse,
+    fine).
+
+    Measured (docs/calibration.md, "Multi-fidelity twins"): mu0 = 1.494 Pa s at h = 0.03 m (-73 %,
+    loss 1.76) and 5.697 Pa s at 0.015 m (+3.6 %, loss 0.51); std statistical 0.195, numerical
+    4.20, total 4.21 Pa s, so mu0 is named poorly identified (total relative std 0.74 > 0.5).  In
+    the first 0.3 s the coarse model is a poor judge of mu0 (5 cells over the block height): its
+    loss is flat and it slides far below the truth, so the resolution error dominates even more
+    than at 0.6 s.  From there the first fine iteration lands within 8 % of the truth (5.097) and
+    the second within 0.2 % of the converged fine fit (5.688 after 4 iterations, same data).
+    Asserted, as in the full test: mu0 within 5 % of the truth at the fine level, the truth inside
+    the 2 sigma total interval (or mu0 named poorly identified), std_numerical > 5 std_statistical
+    and the coarse level more than 2 statistical std from the truth (the resolution error
+    dominates), the fine loss at the noise level (< 1.5) and the coarse one above it."""
+    _multilevel_twin(tmp_path, capsys, (0.15, 0.3), 4, 2)
+
+
+@pytest.mark.slow
 def test_multilevel_twin_mu0_with_a_true_total_error_bar(tmp_path, capsys):
     """Data made at h = 0.015 m (half the working cell size 0.03 m) with 1 mm seeded noise,
     profiles at 0.3 and 0.6 s.  ``mpmjax calibrate --levels 0.03,0.015`` fits mu0 at 0.03 m (the
@@ -120,39 +183,6 @@ def test_multilevel_twin_mu0_with_a_true_total_error_bar(tmp_path, capsys):
     the shift between the levels and std the quadrature sum.  Also asserted, because it is why
     the numerical std exists: the resolution error dominates, std_numerical > 5 std_statistical
     (measured 2.65 against 0.087 Pa s, docs/calibration.md), and the coarse level alone is off by
-    more than 2 statistical std; at the data's resolution the loss falls to the noise level."""
-    import json
-
-    from calibration.data import write_profiles_csv
-    from calibration.synthetic import synthetic_profiles
-    from mpmjax.cli import main
-
-    truth = ML_TRUTH["mu0"]
-    mat = [f"material.mu0_pa_s={truth}", f"material.lambda0={ML_TRUTH['lambda0']}"]
-    profs, _ = synthetic_profiles(
-        TWIN, ML_TIME + mat + ["domain.cell_size_m=0.015"], (0.3, 0.6), np.linspace(0.0, 0.9, 46),
-        sigma_m=0.001, seed=5, bandwidth_m=0.04,
-    )
-    data = tmp_path / "twin.csv"
-    write_profiles_csv(data, profs, "SYNTHETIC twin (test): h = 0.015 m, mu0 = 5.5, lambda0 = 1.2")
-    out = tmp_path / "fit"
-    args = ["calibrate", str(data), "--scene", TWIN, "--fit", "mu0", "--init", "mu0=9",
-            "--init", f"lambda0={ML_TRUTH['lambda0']}", "--bandwidth-m", "0.04", "--levels", "0.03,0.015",
-            "--max-iter", "8", "--refine-max-iter", "4", "--rtol", "1e-3", "--patience", "2", "--out", str(out)]
-    assert main(args) == 0
-    err = capsys.readouterr().err
-    doc = json.loads((out / "fit.json").read_text())
-    coarse, fine = (lv["params"]["mu0"] for lv in doc["levels"])
-    stat, num, tot = (doc[k]["mu0"] for k in ("std_statistical", "std_numerical", "std"))
-    print(f"\nmultilevel twin: mu0 coarse {coarse:.4g}, fine {fine:.4g} (truth {truth}); std statistical "
-          f"{stat:.3g}, numerical {num:.3g}, total {tot:.3g}; losses {[lv['loss_final'] for lv in doc['levels']]}")
-    assert abs(fine / truth - 1) < 0.05, (coarse, fine)
-    assert doc["params"]["mu0"] == fine and [lv["cell_size_m"] for lv in doc["levels"]] == [0.03, 0.015]
-    assert num == pytest.approx(abs(fine - coarse)) and tot == pytest.approx(np.hypot(num, stat))
-    assert abs(fine - truth) <= 2 * tot or "mu0" in doc["poorly_identified"]
-    assert num > 5 * stat and abs(coarse - truth) > 2 * stat
-    assert doc["levels"][1]["loss_final"] < 1.5 < doc["levels"][0]["loss_final"]
-    # the summary and the figure carry the numerical std
-    assert f"numerical {num:.3g} from the shift" in err and "Richardson: mu0 not extrapolated" in err
-    assert "domain.cell_size_m=0.015" in doc["scene_overrides"]
-    assert (out / "fit_profiles.png").stat().st_size > 0
+    more than 2 statistical std; at the data's resolution the loss falls to the noise level.
+    About 170 s on the idle 2-core VM: in CI its reduced form above runs instead."""
+    _multilevel_twin(tmp_path, capsys, (0.3, 0.6), 8, 4)
