@@ -26,7 +26,7 @@ from mpmjax._io import read_checkpoint, read_result
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = "dambreak-lab"
-OVER = ["time.t_end_s=0.6", "time.n_frames=20", "domain.cell_size_m=0.02"]
+OVER = ["time.t_end_s=0.6", "time.n_frames=20", "domain.cell_size_m=0.02", "numerics.ppc=2"]  # ppc 2: 400 particles
 N_FRAMES = 20
 
 
