@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 
 import diffrax
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -351,7 +352,7 @@ class RestTimeExperiment:
     runs: list of (rest_time_s [s], t_s (m,) [s], x_front_m (m,) [m], sigma_m [m] scalar,
     (m,) or None); each becomes a :class:`RunoutSeriesExperiment` with that rest time.
     Residuals: every run's, in order.  sigma_m where a run gives none: ``sigma_m`` (default
-    2 cells).
+    2 cells; ``sigma_known`` False unless a sigma is given).
     """
 
     def __init__(
@@ -360,6 +361,7 @@ class RestTimeExperiment:
         runs,
         *,
         sigma_m=None,
+        sigma_known: bool | None = None,
         bandwidth_m: float | None = None,
         lambda_rest: float | None = None,
         weight: float = 1.0,
@@ -376,7 +378,7 @@ class RestTimeExperiment:
                     t,
                     xf,
                     sigma_m=s if s is not None else sigma_m,
-                    sigma_known=s is not None or sigma_m is not None,
+                    sigma_known=(s is not None or sigma_m is not None) if sigma_known is None else sigma_known,
                     bandwidth_m=bandwidth_m,
                     weight=weight,
                     name=f"{name} (rest {float(tr):g} s)",
@@ -620,25 +622,47 @@ def _scene_parts(e):
     return None
 
 
+def _runs(parts, values, n_frames):
+    """The runs of ``parts`` (MPM experiments of one setup with different ``run_key``: e.g.
+    releases after different rests), as one ``vmap`` over their materials: one compiled
+    simulation however many rests.  Returns {run_key: (initial state, frames)}."""
+    s = parts[0].setup
+    mats = [p.material(values) for p in parts]
+    if len(parts) == 1:
+        return {parts[0].run_key: parts[0].run(values, n_frames)}
+    batch = jax.tree.map(lambda *a: jnp.stack(a), *mats)
+
+    def one(mat):
+        p = s.params._replace(material=mat)
+        st = restate(s.state, s.scene, p)
+        return st, mpmjax.simulate(s.scene, st, p, n_frames)[1]
+
+    st, fr = jax.vmap(one)(batch)
+    return {p.run_key: jax.tree.map(lambda a, i=i: a[i], (st, fr)) for i, p in enumerate(parts)}
+
+
 def joint_residuals(experiments, values: dict):
     """List of residual vectors, one per experiment.  MPM experiments with the same
     ``run_key`` (same setup, same rest) share one run, carried to the last frame any of them
-    needs (e.g. profiles and a runout series of one dam break: one simulation)."""
-    need = {}
+    needs (e.g. profiles and a runout series of one dam break: one simulation); the different
+    runs of one setup (releases after different rests) are one ``vmap`` batch."""
+    groups = {}
     for e in experiments:
         for p in _scene_parts(e) or []:
-            need[p.run_key] = max(need.get(p.run_key, 0), p.n_frames_needed)
+            g = groups.setdefault(id(p.setup), {"parts": {}, "n": 0})
+            g["parts"].setdefault(p.run_key, p)
+            g["n"] = max(g["n"], p.n_frames_needed)
     runs = {}
-
-    def of(p):
-        if p.run_key not in runs:
-            runs[p.run_key] = p.run(values, need[p.run_key])
-        return p.residuals_from(*runs[p.run_key])
-
+    for g in groups.values():
+        runs.update(_runs(list(g["parts"].values()), values, g["n"]))
     out = []
     for e in experiments:
         parts = _scene_parts(e)
-        out.append(e.residuals(values) if parts is None else jnp.concatenate([of(p) for p in parts]))
+        out.append(
+            e.residuals(values)
+            if parts is None
+            else jnp.concatenate([p.residuals_from(*runs[p.run_key]) for p in parts])
+        )
     return out
 
 
