@@ -558,31 +558,47 @@ class ShearHistoryExperiment:
             s = np.broadcast_to(np.asarray(default if t.sigma_ln is None else t.sigma_ln, float), t.t_s.shape)
             times, rates = t.schedule()
             self._data.append(
-                (
-                    jnp.asarray(times, dt),
-                    jnp.asarray(rates, dt),
-                    jnp.asarray(np.asarray(t.t_s, float)[fit_rows], dt),
-                    jnp.asarray(np.asarray(t.gamma_dot_1_s, float)[fit_rows], dt),
-                    jnp.log(jnp.asarray(np.asarray(t.tau_pa, float)[fit_rows], dt)),
-                    jnp.asarray(s[fit_rows], dt),
+                tuple(
+                    np.asarray(a, float)
+                    for a in (
+                        times,
+                        rates,
+                        np.asarray(t.t_s, float)[fit_rows],
+                        np.asarray(t.gamma_dot_1_s, float)[fit_rows],
+                        np.log(np.asarray(t.tau_pa, float)[fit_rows]),
+                        s[fit_rows],
+                    )
                 )
             )
-        self.n_residuals = sum(int(d[2].size) for d in self._data)
+        # tests of the same shape (schedule steps, measured rows) are one vmap batch: one solve
+        # compiled per shape, not per test
+        groups = {}
+        for i, d in enumerate(self._data):
+            groups.setdefault((d[0].size, d[2].size), []).append(i)
+        self._groups = [(idx, [jnp.asarray(np.stack([self._data[i][j] for i in idx]), dt) for j in range(4)])
+                        for idx in groups.values()]
+        self._ln_tau = jnp.asarray(np.concatenate([d[4] for d in self._data]), dt)
+        self._sigma = jnp.asarray(np.concatenate([d[5] for d in self._data]), dt)
+        self.n_residuals = int(self._ln_tau.size)
 
     def model(self, values: dict):
         """Model shear stress tau [Pa] at every measured row, one array per test."""
         mat = _with(self.base, values, jnp.result_type(*self.base))
         law = mpmjax.law_of(mat)()
-        out = []
-        for times, rates, ts, g, _, _ in self._data:
+
+        def one(times, rates, ts, g):
             r = shear_history(mat, times, rates, ts, adjoint=diffrax.DirectAdjoint(), **self.solver)
-            out.append(law.mu(mat, g, r.internal) * g)
+            return law.mu(mat, g, r.internal) * g
+
+        out = [None] * len(self._data)
+        for idx, arrays in self._groups:
+            tau = jax.vmap(one)(*arrays)
+            for k, i in enumerate(idx):
+                out[i] = tau[k]
         return out
 
     def residuals(self, values: dict):
-        return jnp.concatenate(
-            [(jnp.log(tau) - d[4]) / d[5] for tau, d in zip(self.model(values), self._data, strict=True)]
-        )
+        return (jnp.log(jnp.concatenate(self.model(values))) - self._ln_tau) / self._sigma
 
 
 def overshoot_test(label, *, preshear_1_s, preshear_s, rest_s, rate_1_s, t_after_s, tau_pa=None, sigma_ln=None):

@@ -97,8 +97,6 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
 
 
 # ------------------------------------------------------------------------------------------
@@ -117,17 +115,20 @@ JOINT_SIGMA = {"profiles": 0.001, "runout-series": 0.003, "rest-times": 0.003, "
 def joint_shear_tests():
     """The twin's rheometer protocol (``calibration.data.ShearTest`` rows, stresses to be filled):
     pre-shear at 100 1/s for 5 s (erasing the loading history, so these tests say nothing about
-    lambda0), rest 0, 2 or 10 s, start-up at 0.5 or 5 1/s with the stress sampled from 0.05 to
-    20 s after it (the overshoot and its relaxation), plus a step down from 100 to 1 1/s."""
+    lambda0), rest 0.5, 2 or 10 s, start-up at 0.5 or 5 1/s with the stress sampled from 0.05 to
+    20 s after it (the overshoot and its relaxation), plus two steps down, 100 -> 20 -> 1 1/s
+    (5 s at 20 1/s).  Every test has three rate stretches and 12 measured rows, so the seven are
+    one ``vmap`` batch of one compiled solve."""
+    from .data import ShearTest
     from .experiments import overshoot_test
 
     ta = np.geomspace(0.05, 20.0, 12)
     tests = [
         overshoot_test(f"{i + 1}", preshear_1_s=100.0, preshear_s=5.0, rest_s=rest, rate_1_s=rate, t_after_s=ta)
-        for i, (rest, rate) in enumerate((r, g) for r in (0.0, 2.0, 10.0) for g in (0.5, 5.0))
+        for i, (rest, rate) in enumerate((r, g) for r in (0.5, 2.0, 10.0) for g in (0.5, 5.0))
     ]
-    tests.append(overshoot_test(f"{len(tests) + 1}", preshear_1_s=100.0, preshear_s=5.0, rest_s=0.0, rate_1_s=1.0,
-                                t_after_s=ta))
+    step = overshoot_test("7", preshear_1_s=100.0, preshear_s=5.0, rest_s=5.0, rate_1_s=1.0, t_after_s=ta)
+    tests.append(ShearTest("7", step.t_s, np.where(step.gamma_dot_1_s == 0, 20.0, step.gamma_dot_1_s), step.tau_pa))
     return tests
 
 
@@ -236,7 +237,8 @@ def write_joint_twin(out_dir, truth=None, **kw) -> dict:
         f"scene twin-small-dambreak.toml at h = {setup.scene.h} m; Coussot truth {truth}; noise sigma "
         f"{JOINT_SIGMA} (m for heights and fronts, ln tau for stresses), seed {kw.get('seed', 5)}."
     )
-    paths = {k: out / f"{k.replace('-', '_')}.csv" for k in ("profiles", "runout-series", "rest-times", "transient")}
+    names = {"profiles": "profiles", "runout-series": "runout_series", "rest-times": "rest_times", "transient": "transients"}
+    paths = {k: out / f"{v}.csv" for k, v in names.items()}
     write_profiles_csv(paths["profiles"], d["profiles"], head + "\ncolumns: x_m [m], h_m [m], t_s [s], sigma_m [m]")
     t, f = d["runout-series"]
     write_table_csv(paths["runout-series"], {"t_s": t, "x_front_m": f, "sigma_m": np.full(t.size, JOINT_SIGMA["runout-series"])},
@@ -258,3 +260,7 @@ def write_joint_twin(out_dir, truth=None, **kw) -> dict:
     write_table_csv(paths["transient"], cols, head + "\ncolumns: test, t_s [s], gamma_dot_1_s [1/s] (the rate on "
                     "(previous t_s, t_s]), tau_pa [Pa] (empty: a schedule row), sigma_ln [-]")
     return paths
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
