@@ -120,8 +120,9 @@ def test_calibrate_cli_bad_new_input_exits_2(tmp_path, capsys):
 def test_shear_history_equals_the_exact_coussot_solution():
     """Pre-shear, rest, start-up: the Coussot kinetics are linear, so the structure is exact
     piecewise (exponential relaxation under shear, lambda + t/T at rest).  The diffrax model
-    (rtol 1e-8) must match the exact stress to 1e-6 relative, and an overshoot must show: the
-    stress at start-up after a rest exceeds the steady stress."""
+    (rtol 1e-8) must match the exact stress to 1e-6 relative (tolerance: 100x the solver's), and
+    an overshoot must show: the stress at start-up after a rest is far above the steady stress
+    and relaxes towards it (within 10 % after 3 s: e^(-alpha gdot 3 s) = 3.5 % of the excess)."""
     mat = make_params(**{"mu0": 3.0, "alpha": 1.6, "T": 0.8, "n": 2.2, "lambda0": 1.4})
     ta = np.array([0.05, 0.3, 1.0, 3.0])
     test = overshoot_test("a", preshear_1_s=20.0, preshear_s=0.2, rest_s=2.0, rate_1_s=0.7, t_after_s=ta)
@@ -137,7 +138,8 @@ def test_shear_history_equals_the_exact_coussot_solution():
     exact = mu0 * (1 + relax(lam, 0.7, ta) ** n) * 0.7
     np.testing.assert_allclose(tau, exact, rtol=1e-6)
     steady = mu0 * (1 + (1 / (a * T * 0.7)) ** n) * 0.7
-    assert tau[0] > 1.5 * steady and tau[-1] == pytest.approx(steady, rel=0.05)
+    # the overshoot: far above the steady stress at start-up, relaxing towards it
+    assert tau[0] > 1.5 * steady and np.all(np.diff(tau) < 0) and tau[-1] < 1.1 * steady
     data = ShearTest("a", test.t_s, test.gamma_dot_1_s, np.where(np.isfinite(test.tau_pa), np.r_[np.nan, np.nan, exact], np.nan))
     r = ShearHistoryExperiment(mat, [data], sigma_ln=0.03).residuals({})
     assert r.shape == (4,) and float(jnp.max(jnp.abs(r))) < 1e-4
