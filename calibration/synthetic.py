@@ -16,8 +16,15 @@ import numpy as np
 
 import mpmjax
 
-from .data import Profile, write_profiles_csv
-from .experiments import ProfileExperiment, frames_for
+from .data import Profile, ShearTest, write_profiles_csv, write_table_csv
+from .experiments import (
+    ProfileExperiment,
+    RestTimeExperiment,
+    RunoutSeriesExperiment,
+    ShearHistoryExperiment,
+    frames_for,
+    overshoot_test,
+)
 
 __all__ = ["synthetic_profiles", "DATASETS", "main"]
 
@@ -119,9 +126,6 @@ def joint_shear_tests():
     20 s after it (the overshoot and its relaxation), plus two steps down, 100 -> 20 -> 1 1/s
     (5 s at 20 1/s).  Every test has three rate stretches and 12 measured rows, so the seven are
     one ``vmap`` batch of one compiled solve."""
-    from .data import ShearTest
-    from .experiments import overshoot_test
-
     ta = np.geomspace(0.05, 20.0, 12)
     tests = [
         overshoot_test(f"{i + 1}", preshear_1_s=100.0, preshear_s=5.0, rest_s=rest, rate_1_s=rate, t_after_s=ta)
@@ -151,14 +155,6 @@ def joint_twin(
     the truth with the sigmas known, which does not depend on the data values.  Returns (experiments in the order profiles, runout series, rest
     times, transients; the fit's setup, whose material is the truth; the data as dict of kind ->
     numpy arrays, for writing files)."""
-    from .experiments import (
-        ProfileExperiment,
-        RestTimeExperiment,
-        RunoutSeriesExperiment,
-        ShearHistoryExperiment,
-    )
-    from .data import ShearTest
-
     truth = dict(JOINT_TRUTH if truth is None else truth)
     keys = {"mu0": "material.mu0_pa_s", "alpha": "material.alpha", "T": "material.T_s", "n": "material.n",
             "lambda0": "material.lambda0"}
@@ -226,8 +222,6 @@ def write_joint_twin(out_dir, truth=None, **kw) -> dict:
     """Write the joint twin's data (:func:`joint_twin`, same keywords) as the files of
     ``mpmjax calibrate``: profiles.csv, runout_series.csv, rest_times.csv, transients.csv, each
     labelled SYNTHETIC with its truth in a ``#`` header.  Returns {kind: path}."""
-    from .data import write_table_csv
-
     truth = dict(JOINT_TRUTH if truth is None else truth)
     _, setup, d = joint_twin(truth, **kw)
     out = Path(out_dir)
