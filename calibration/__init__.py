@@ -2,8 +2,10 @@
 
 * ``load_profiles`` / ``Profile`` (``calibration.data``): measured flume profiles, CSV or HDF5.
 * ``ParameterSet`` / ``ParamSpec`` (``calibration.params``): which parameters are fitted, bounds, transforms.
-* ``ProfileExperiment``, ``FlowCurveExperiment``, ``TransientExperiment``, ``joint_loss``
-  (``calibration.experiments``; the last two: rheometer data, fitted with ``fit`` like profiles).
+* ``ProfileExperiment``, ``RunoutSeriesExperiment``, ``RestTimeExperiment`` (MPM runs: height
+  profiles, front against time, repeated releases after rests), ``FlowCurveExperiment``,
+  ``TransientExperiment``, ``ShearHistoryExperiment`` (rheometer: flow curve, constant-rate
+  transients, rate steps and overshoot after rest), ``joint_loss`` (``calibration.experiments``).
 * ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam, multi-start by ``vmap``.
 * ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability;
   ``numerical_uncertainty`` / ``combine``: the discretisation std from fits at several cell sizes.
@@ -15,8 +17,27 @@
 
 from mpmjax import deposited_volume, gaussian_kernel, height_profile, particle_volume, smooth_front
 
-from .data import DataError, Profile, load_profiles, write_profiles_csv
-from .experiments import FlowCurveExperiment, ProfileExperiment, TransientExperiment, joint_loss
+from .data import (
+    DataError,
+    Profile,
+    RunoutSeries,
+    ShearTest,
+    load_profiles,
+    load_rest_times,
+    load_runout_series,
+    load_shear_tests,
+    write_profiles_csv,
+)
+from .experiments import (
+    FlowCurveExperiment,
+    ProfileExperiment,
+    RestTimeExperiment,
+    RunoutSeriesExperiment,
+    ShearHistoryExperiment,
+    TransientExperiment,
+    joint_loss,
+    overshoot_test,
+)
 from .fit import FitResult, fit
 from .multilevel import MultilevelResult, experiments_at_cell_size, fit_multilevel
 from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
@@ -34,6 +55,11 @@ __all__ = [
     "ParameterSet",
     "Profile",
     "ProfileExperiment",
+    "RestTimeExperiment",
+    "RunoutSeries",
+    "RunoutSeriesExperiment",
+    "ShearHistoryExperiment",
+    "ShearTest",
     "TransientExperiment",
     "Uncertainty",
     "combine",
@@ -46,7 +72,11 @@ __all__ = [
     "height_profile",
     "joint_loss",
     "load_profiles",
+    "load_rest_times",
+    "load_runout_series",
+    "load_shear_tests",
     "numerical_uncertainty",
+    "overshoot_test",
     "particle_volume",
     "smooth_front",
     "sweep",

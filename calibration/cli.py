@@ -16,12 +16,19 @@ import numpy as np
 
 import mpmjax
 
-from .data import DataError, load_profiles
-from .experiments import FlowCurveExperiment, ProfileExperiment, frames_for
+from .data import DataError, load_profiles, load_rest_times, load_runout_series, load_shear_tests
+from .experiments import (
+    FlowCurveExperiment,
+    ProfileExperiment,
+    RestTimeExperiment,
+    RunoutSeriesExperiment,
+    ShearHistoryExperiment,
+    frames_for,
+)
 from .multilevel import check_levels, experiments_at_cell_size, fit_multilevel
 from .params import UNITS, ParameterSet
 from .sweep import FIELD_KEYS, parse_vary, sweep, write_sweep
-from .uncertainty import REL_STD_WARN
+from .uncertainty import REL_STD_WARN, identifiability, identifiability_lines
 
 USAGE_ERROR = 2
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
@@ -95,6 +102,43 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     p.add_argument("--runout-m", type=float, help="also fit a measured final runout [m]")
     p.add_argument("--runout-sigma-m", type=float, help="its standard deviation [m] (default 2 cells)")
     p.add_argument("--flow-curve", help="also fit rheometer flow-curve points: CSV with gamma_dot_1_s, tau_pa")
+    p.add_argument(
+        "--runout-series",
+        metavar="FILE",
+        help="also fit the front position against time of the same dam break: CSV/HDF5 with t_s [s], x_front_m [m] "
+        "[, sigma_m [m], weight]",
+    )
+    p.add_argument(
+        "--rest-times",
+        metavar="FILE",
+        help="also fit repeated releases of the scene after rests (initial structure lambda_rest + t_rest/T): "
+        "CSV/HDF5 with t_rest_s [s], t_s [s], x_front_m [m] [, sigma_m [m], lambda_rest, weight]",
+    )
+    p.add_argument(
+        "--lambda-rest",
+        type=float,
+        help="structure when the rests of --rest-times began [-] (default: the material's lambda0, fitted or fixed)",
+    )
+    p.add_argument(
+        "--transient",
+        metavar="FILE",
+        help="also fit rheometer transients under shear-rate steps (e.g. pre-shear, rest, start-up overshoot): "
+        "CSV/HDF5 with test, t_s [s], gamma_dot_1_s [1/s], tau_pa [Pa] [, sigma_ln, weight]",
+    )
+    p.add_argument(
+        "--sigma",
+        action="append",
+        metavar="KIND=VALUE",
+        help=f"noise level of an experiment kind where its file gives none: {', '.join(SIGMA_UNITS)} "
+        f"(units: {', '.join(f'{k} {u}' for k, u in SIGMA_UNITS.items())})",
+    )
+    p.add_argument(
+        "--weight",
+        action="append",
+        metavar="KIND=W",
+        help=f"loss weight of an experiment kind (> 0; overrides its file's weight; default 1): "
+        f"{', '.join(SIGMA_UNITS)}",
+    )
     lv = p.add_mutually_exclusive_group()
     lv.add_argument(
         "--refine",
@@ -113,6 +157,27 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     )
     p.add_argument("--out", default="calibration-out", help="output folder (default calibration-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+# experiment kinds of --sigma / --weight, and the unit of each kind's sigma
+SIGMA_UNITS = {
+    "profiles": "m",
+    "runout-series": "m",
+    "rest-times": "m",
+    "transient": "- (relative, in ln tau)",
+    "flow-curve": "- (relative, in ln tau)",
+}
+
+
+def _per_kind(items, option):
+    """--sigma / --weight KIND=VALUE -> {kind: value > 0}, or ValueError naming the option."""
+    out = _kv(items, option)
+    for k, v in out.items():
+        if k not in SIGMA_UNITS:
+            raise ValueError(f"{option} {k}={v:g}: unknown experiment kind {k!r}; allowed: {', '.join(SIGMA_UNITS)}")
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{option} {k}={v!r}; allowed range: > 0 and finite [{SIGMA_UNITS[k].split()[0]}]")
+    return out
 
 
 # --refine: at most this many halvings (each costs ~8x the previous level's run in 2D)
@@ -151,6 +216,19 @@ def calibrate(args) -> dict:
     out = Path(args.out)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     profiles = load_profiles(args.data)
+    sigmas = _per_kind(args.sigma, "--sigma")
+    weights = _per_kind(args.weight, "--weight")
+    if args.sigma_m is not None:
+        if "profiles" in sigmas:
+            raise ValueError("--sigma-m and --sigma profiles=... both given; give one")
+        sigmas["profiles"] = args.sigma_m
+    series = load_runout_series(args.runout_series) if args.runout_series else None
+    rests = load_rest_times(args.rest_times) if args.rest_times else None
+    shear = load_shear_tests(args.transient) if args.transient else None
+    if args.lambda_rest is not None and not (np.isfinite(args.lambda_rest) and args.lambda_rest >= 0):
+        raise ValueError(f"--lambda-rest = {args.lambda_rest!r}; allowed range: >= 0 and finite [-]")
+    data_times = [p.t_s for p in profiles] + (list(series.t_s) if series else [])
+    data_times += [float(t) for r in rests or [] for t in r.t_s]
     names = [s.strip() for s in args.fit.split(",") if s.strip()]
     if not names:
         raise ValueError("--fit: name at least one parameter, e.g. --fit mu0,n")
@@ -158,7 +236,7 @@ def calibrate(args) -> dict:
     keys = {o.split("=", 1)[0].strip() for o in overrides}
     cfg0 = mpmjax.load_scene(args.scene, overrides)
     if not ({"time.t_end_s", "time.n_frames"} & keys):
-        t_end, nf = frames_for([p.t_s for p in profiles], cfg0["time.t_end_s"], cfg0["time.n_frames"])
+        t_end, nf = frames_for(data_times, cfg0["time.t_end_s"], cfg0["time.n_frames"])
         overrides += [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]
     init = _kv(args.init, "--init")
     for k, v in init.items():
@@ -188,20 +266,74 @@ def calibrate(args) -> dict:
     runout_sigma_m = args.runout_sigma_m if args.runout_sigma_m is not None else 2 * levels[0]
     flow = _load_flow_curve(args.flow_curve) if args.flow_curve else None
 
+    def weight(kind, from_file=None):
+        return weights.get(kind, from_file if from_file is not None else 1.0)
+
     def make(st):
         exps = [
             ProfileExperiment(
                 st,
                 profiles,
                 bandwidth_m=bandwidth_m,
-                sigma_m=args.sigma_m,
+                sigma_m=sigmas.get("profiles"),
                 runout_m=args.runout_m,
                 runout_sigma_m=runout_sigma_m,
+                weight=weight("profiles"),
                 name=Path(args.data).name,
             )
         ]
+        if series is not None:
+            exps.append(
+                RunoutSeriesExperiment(
+                    st,
+                    series.t_s,
+                    series.x_front_m,
+                    sigma_m=series.sigma_m if series.sigma_m is not None else sigmas.get("runout-series", runout_sigma_m),
+                    sigma_known=series.sigma_m is not None or "runout-series" in sigmas,
+                    bandwidth_m=bandwidth_m,
+                    weight=weight("runout-series", series.weight),
+                    name=Path(args.runout_series).name,
+                )
+            )
+        if rests is not None:
+            lam = {r.lambda_rest for r in rests} - {None}
+            if len(lam) > 1 or (lam and args.lambda_rest is not None):
+                raise ValueError(
+                    f"{args.rest_times}: lambda_rest differs between rest times ({sorted(lam)}) or is given both in the "
+                    "file and by --lambda-rest; allowed: one value"
+                )
+            exps.append(
+                RestTimeExperiment(
+                    st,
+                    [(r.rest_time_s, r.t_s, r.x_front_m, r.sigma_m) for r in rests],
+                    sigma_m=sigmas.get("rest-times", runout_sigma_m),
+                    sigma_known=all(r.sigma_m is not None for r in rests) or "rest-times" in sigmas,
+                    bandwidth_m=bandwidth_m,
+                    lambda_rest=next(iter(lam), args.lambda_rest),
+                    weight=weight("rest-times", rests[0].weight),
+                    name=Path(args.rest_times).name,
+                )
+            )
+        if shear is not None:
+            exps.append(
+                ShearHistoryExperiment(
+                    st.params.material,
+                    shear[0],
+                    sigma_ln=sigmas.get("transient"),
+                    weight=weight("transient", shear[1]),
+                    name=Path(args.transient).name,
+                )
+            )
         if flow is not None:
-            exps.append(FlowCurveExperiment(st.params.material, *flow, name=Path(args.flow_curve).name))
+            exps.append(
+                FlowCurveExperiment(
+                    st.params.material,
+                    *flow,
+                    sigma_ln=sigmas.get("flow-curve"),
+                    weight=weight("flow-curve"),
+                    name=Path(args.flow_curve).name,
+                )
+            )
         return exps
 
     build_at = experiments_at_cell_size(args.scene, overrides, make)
@@ -310,6 +442,18 @@ def calibrate(args) -> dict:
         "fixed": {k: s.init for k, s in pset.specs.items() if s.fixed},
         "specs": pset.bounds_table(),
         "uncertainty": {**unc.as_dict(), "warnings": warnings},
+        "identifiability": identifiability(unc),
+        "experiments": [
+            {
+                "name": e.name,
+                "kind": type(e).__name__,
+                "weight": e.weight,
+                "n_residuals": e.n_residuals,
+                "sigma_known": bool(e.sigma_known),
+                "noise_scale": s,
+            }
+            for e, s in zip(exps, unc.noise_scale, strict=True)
+        ],
         "loss_definition": "sum over experiments of weight * mean(((model - data) / sigma)^2), dimensionless",
         "loss_history": [float(v) for v in res.history.min(axis=1)],
         "method": args.method,
@@ -341,7 +485,7 @@ def calibrate(args) -> dict:
             + ", ".join(f"{k} = {v:.5g}" for k, v in r.params.items())
         )
     log(f"calibrate: {wall:.1f} s; at h = {levels[-1]:g} m:")
-    for line in summary_lines(doc):
+    for line in summary_lines(doc) + identifiability_lines(doc["identifiability"]):
         log(line)
     log(f"wrote {out / 'fit.json'}, {out / 'fit_profiles.png'}, {out / 'loss_history.png'}")
     return doc

@@ -282,3 +282,331 @@ def write_profiles_csv(path, profiles, header_comment: str = ""):
                 row.append(f"{p.sigma_m[i]:.6g}")
             lines.append(",".join(row))
     mpmjax.atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+# ------------------------------------------------------------------------------------------
+# Tables of the other experiment kinds: runout series, rest times, rheometer shear histories
+# ------------------------------------------------------------------------------------------
+# kind -> (required columns, optional columns); every column's unit is in its name (see
+# docs/calibration.md, "Data formats").  "weight" (the experiment's loss weight, one value for
+# the whole file) may be a column or an HDF5 attribute; so may the kind's sigma column (a
+# scalar attribute applies to every row).
+TABLES = {
+    "runout series": (("t_s", "x_front_m"), ("sigma_m", "weight")),
+    "rest times": (("t_rest_s", "t_s", "x_front_m"), ("sigma_m", "lambda_rest", "weight")),
+    "shear history": (("test", "t_s", "gamma_dot_1_s"), ("tau_pa", "sigma_ln", "weight")),
+}
+# columns that may be left empty in a CSV row (NaN): a shear-history row without a stress is a
+# schedule row (it sets the rate only)
+BLANK_OK = {"tau_pa"}
+TABLE_UNITS = {
+    "t_s": "s", "t_rest_s": "s", "x_front_m": "m", "sigma_m": "m", "gamma_dot_1_s": "1/s", "tau_pa": "Pa",
+    "sigma_ln": "-", "lambda_rest": "-", "weight": "-", "test": "-",
+}
+
+
+class Table:
+    """Columns of a data file as float arrays (``cols``), where each row came from (``rows``:
+    "line N" for CSV, "index i" for HDF5), and the file's name (``src``)."""
+
+    def __init__(self, src, cols, rows):
+        self.src, self.cols, self.rows = src, cols, rows
+
+    def where(self, i):
+        return f"{self.src}: {self.rows[i]}"
+
+    def check(self, col, ok, allowed):
+        """DataError naming the file, row, column, value and ``allowed`` at the first row where
+        ``ok`` is False."""
+        bad = np.flatnonzero(~np.asarray(ok, bool))
+        if bad.size:
+            i = int(bad[0])
+            raise DataError(f"{self.where(i)}: {col} = {float(self.cols[col][i])!r}; allowed range: {allowed}")
+
+    def scalar(self, col):
+        """The one value of a per-file column (e.g. weight), or None; DataError if it varies."""
+        a = self.cols.get(col)
+        if a is None:
+            return None
+        self.check(col, np.isfinite(a) & (a > 0), f"> 0 and finite [{TABLE_UNITS[col]}]")
+        bad = np.flatnonzero(a != a[0])
+        if bad.size:
+            i = int(bad[0])
+            raise DataError(
+                f"{self.where(i)}: {col} = {float(a[i])!r} differs from the first row's {float(a[0])!r}; "
+                f"allowed: one {col} per file"
+            )
+        return float(a[0])
+
+
+def read_table(path, kind: str) -> Table:
+    """Read a data file of ``kind`` (a key of ``TABLES``): CSV (one header line naming the
+    columns, ``#`` comment lines anywhere, empty fields only in ``BLANK_OK`` columns) or HDF5
+    (one 1-D dataset per column, all of one length; a column may instead be a scalar root
+    attribute, which applies to every row; a ``units`` attribute, when present, is checked).
+    Unknown columns are an error; every value must be a number."""
+    path = Path(path)
+    src = str(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such file")
+    req, opt = TABLES[kind]
+    allowed = req + opt
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        with open(path, newline="") as f:
+            lines = [(i + 1, ln) for i, ln in enumerate(f) if ln.strip() and not ln.lstrip().startswith("#")]
+        if not lines:
+            raise DataError(f"{src}: no header line; expected columns {', '.join(req)} [, {', '.join(opt)}]")
+        rows = list(csv.reader([ln for _, ln in lines]))
+        header = [c.strip() for c in rows[0]]
+        if len(set(header)) != len(header):
+            raise DataError(f"{src}: repeated column names in the header {header}")
+        cols = {c: [] for c in header}
+        where = []
+        for (lineno, _), r in zip(lines[1:], rows[1:], strict=True):
+            if len(r) != len(header):
+                raise DataError(f"{src}: line {lineno} has {len(r)} fields; the header has {len(header)}")
+            for c, v in zip(header, r, strict=True):
+                v = v.strip()
+                if v == "" and c in BLANK_OK:
+                    cols[c].append(math.nan)
+                else:
+                    cols[c].append(_parse_float(src, f"{lineno} (line)", c, v))
+            where.append(f"line {lineno}")
+        cols = {c: np.asarray(v, float) for c, v in cols.items()}
+    elif suffix in (".h5", ".hdf5", ".hdf"):
+        try:
+            with h5py.File(path, "r") as f:
+                header = list(f.keys())
+                cols = {}
+                for k in header:
+                    if k in TABLE_UNITS:
+                        u = f[k].attrs.get("units")
+                        u = u.decode() if isinstance(u, bytes) else u
+                        if u is not None and str(u) != TABLE_UNITS[k]:
+                            raise DataError(
+                                f"{src}: {k} has units attribute {u!r}; expected {TABLE_UNITS[k]!r} (convert to SI)"
+                            )
+                    cols[k] = np.atleast_1d(np.asarray(f[k][()], float))
+                    if cols[k].ndim != 1:
+                        raise DataError(f"{src}: dataset {k} has shape {cols[k].shape}; expected 1-D (one per row)")
+                attrs = {k: float(np.asarray(v)) for k, v in f.attrs.items() if k in allowed and k not in cols}
+        except OSError as e:
+            raise DataError(f"{path}: not a readable HDF5 file ({e})") from None
+        lengths = {k: v.size for k, v in cols.items()}
+        if len(set(lengths.values())) > 1:
+            raise DataError(f"{src}: datasets of different lengths {lengths}; one value per row in each")
+        n = next(iter(lengths.values()), 0)
+        for k, v in attrs.items():
+            cols[k] = np.full(n, v)
+        header = list(cols)
+        where = [f"index {i}" for i in range(n)]
+    else:
+        raise DataError(f"{path}: unknown file type {suffix!r}; allowed: .csv, .h5, .hdf5")
+    unknown = [c for c in header if c not in allowed]
+    if unknown:
+        raise DataError(
+            f"{src}: unknown column(s) {', '.join(map(repr, unknown))}; allowed for a {kind} file: "
+            f"{', '.join(allowed)} (units in the names; docs/calibration.md)"
+        )
+    for c in req:
+        if c not in cols:
+            raise DataError(f"{src}: missing required column {c!r}; a {kind} file has {', '.join(req)}")
+    if not where:
+        raise DataError(f"{src}: the file has a header but no data rows")
+    t = Table(src, cols, where)
+    for c, a in cols.items():
+        ok = np.isfinite(a) | (np.isnan(a) & (c in BLANK_OK))
+        t.check(c, ok, f"a finite number [{TABLE_UNITS[c]}]")
+    return t
+
+
+@dataclass(frozen=True)
+class RunoutSeries:
+    """A measured front position against time: t_s (m,) [s] >= 0, strictly increasing;
+    x_front_m (m,) [m]; sigma_m (m,) [m] or None; rest_time_s [s] (rest-time files) or None;
+    lambda_rest [-] or None; weight or None (the file's); source: the file's name."""
+
+    t_s: np.ndarray
+    x_front_m: np.ndarray
+    sigma_m: np.ndarray | None = None
+    rest_time_s: float | None = None
+    lambda_rest: float | None = None
+    weight: float | None = None
+    source: str = field(default="", compare=False)
+
+
+def _series(t: Table, idx, rest=None):
+    c = t.cols
+    ts = c["t_s"][idx]
+    d = np.diff(ts)
+    bad = np.flatnonzero(d <= 0)
+    if bad.size:
+        i = int(idx[bad[0] + 1])
+        raise DataError(
+            f"{t.where(i)}: t_s = {float(c['t_s'][i])!r} does not increase (previous {float(ts[bad[0]])!r}); "
+            "allowed: strictly increasing within a series (sort the rows by t_s)"
+        )
+    lam = None
+    if "lambda_rest" in c:
+        lam = float(c["lambda_rest"][idx[0]])
+        bad = np.flatnonzero(c["lambda_rest"][idx] != lam)
+        if bad.size:
+            i = int(idx[bad[0]])
+            raise DataError(
+                f"{t.where(i)}: lambda_rest = {float(c['lambda_rest'][i])!r} differs within the run of rest "
+                f"{rest:g} s; allowed: one lambda_rest per rest time"
+            )
+    return RunoutSeries(
+        ts,
+        c["x_front_m"][idx],
+        c["sigma_m"][idx] if "sigma_m" in c else None,
+        rest,
+        lam,
+        t.scalar("weight"),
+        Path(t.src).name,
+    )
+
+
+def _check_series_columns(t: Table):
+    c = t.cols
+    t.check("t_s", c["t_s"] >= 0, ">= 0 and finite [s]")
+    if "sigma_m" in c:
+        t.check("sigma_m", c["sigma_m"] > 0, "> 0 and finite [m]")
+    if "t_rest_s" in c:
+        t.check("t_rest_s", c["t_rest_s"] >= 0, ">= 0 and finite [s]")
+    if "lambda_rest" in c:
+        t.check("lambda_rest", c["lambda_rest"] >= 0, ">= 0 and finite [-]")
+
+
+def load_runout_series(path) -> RunoutSeries:
+    """A runout time series (columns t_s [s], x_front_m [m], optional sigma_m [m], weight [-];
+    CSV or HDF5, :func:`read_table`)."""
+    t = read_table(path, "runout series")
+    _check_series_columns(t)
+    return _series(t, np.arange(len(t.rows)))
+
+
+def load_rest_times(path) -> list[RunoutSeries]:
+    """Repeated dam breaks after rests: columns t_rest_s [s], t_s [s] (time since the release),
+    x_front_m [m], optional sigma_m [m], lambda_rest [-] (the structure when the rest began;
+    default the material's lambda0), weight [-].  Rows with the same t_rest_s form one run.
+    Returns the runs by increasing rest time."""
+    t = read_table(path, "rest times")
+    _check_series_columns(t)
+    tr = t.cols["t_rest_s"]
+    return [_series(t, np.flatnonzero(tr == v), float(v)) for v in np.unique(tr)]
+
+
+@dataclass(frozen=True)
+class ShearTest:
+    """One rheometer test under a piecewise-constant shear rate, started at t = 0 from the
+    law's initial internal state (Coussot: lambda0).
+
+    t_s (m,) [s] > 0, strictly increasing; gamma_dot_1_s (m,) [1/s] >= 0: the rate imposed on
+    (t_{i-1}, t_i] (t_0 = 0), so a rate change takes effect at the previous row's time;
+    tau_pa (m,) [Pa]: the measured shear stress at t_i, NaN for a schedule row (one that only
+    sets the rate, e.g. the end of a pre-shear or of a rest: a stress at rest cannot enter a
+    ln tau residual); sigma_ln (m,) [-] or None: relative standard deviation of tau.
+    """
+
+    label: str
+    t_s: np.ndarray
+    gamma_dot_1_s: np.ndarray
+    tau_pa: np.ndarray
+    sigma_ln: np.ndarray | None = None
+    source: str = field(default="", compare=False)
+
+    def __post_init__(self):
+        src = f"{self.source or 'shear test'} (test {self.label})"
+        t, g, tau = (np.atleast_1d(np.asarray(a, float)) for a in (self.t_s, self.gamma_dot_1_s, self.tau_pa))
+        if t.ndim != 1 or g.shape != t.shape or tau.shape != t.shape:
+            raise DataError(f"{src}: t_s {t.shape}, gamma_dot_1_s {g.shape}, tau_pa {tau.shape} must be equal 1-D")
+        for name, a, ok, rng in (
+            ("t_s", t, np.isfinite(t) & (t > 0), "> 0 and finite [s]"),
+            ("gamma_dot_1_s", g, np.isfinite(g) & (g >= 0), ">= 0 and finite [1/s]"),
+            ("tau_pa", tau, np.isnan(tau) | (np.isfinite(tau) & (tau > 0)), "> 0 and finite [Pa], or empty"),
+        ):
+            bad = np.flatnonzero(~ok)
+            if bad.size:
+                raise DataError(f"{src}: {name}[{bad[0]}] = {float(a[bad[0]])!r}; allowed range: {rng}")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            raise DataError(f"{src}: t_s[{bad[0] + 1}] = {t[bad[0] + 1]!r} does not increase; allowed: strictly increasing")
+        bad = np.flatnonzero((g == 0) & np.isfinite(tau))
+        if bad.size:
+            raise DataError(
+                f"{src}: tau_pa[{bad[0]}] = {tau[bad[0]]!r} at gamma_dot_1_s = 0; allowed: empty (a stress at rest "
+                "cannot enter a ln tau residual)"
+            )
+        if not np.isfinite(tau).any():
+            raise DataError(f"{src}: no measured stress (every tau_pa is empty)")
+        if self.sigma_ln is not None:
+            s = np.broadcast_to(np.asarray(self.sigma_ln, float), t.shape)
+            bad = np.flatnonzero(~(np.isfinite(s) & (s > 0)))
+            if bad.size:
+                raise DataError(f"{src}: sigma_ln[{bad[0]}] = {float(s[bad[0]])!r}; allowed range: > 0 and finite [-]")
+
+    def schedule(self):
+        """(step times [s], rates [1/s]) for ``mpmjax.rheometer.shear_history``: rates[j] from
+        times[j] on."""
+        t = np.asarray(self.t_s, float)
+        g = np.asarray(self.gamma_dot_1_s, float)
+        times, rates = [0.0], [float(g[0])]
+        for i in range(1, t.size):
+            if g[i] != g[i - 1]:
+                times.append(float(t[i - 1]))
+                rates.append(float(g[i]))
+        return np.asarray(times), np.asarray(rates)
+
+
+def load_shear_tests(path) -> tuple[list[ShearTest], float | None]:
+    """Rheometer tests under piecewise-constant shear rates (columns test [-] (a number per
+    test), t_s [s], gamma_dot_1_s [1/s], tau_pa [Pa] (empty: a schedule row), optional sigma_ln
+    [-], weight [-]; see :class:`ShearTest`).  Returns (tests in file order, the file's weight or
+    None)."""
+    t = read_table(path, "shear history")
+    c = t.cols
+    if "sigma_ln" in c:
+        t.check("sigma_ln", c["sigma_ln"] > 0, "> 0 and finite [-]")
+    t.check("t_s", c["t_s"] > 0, "> 0 and finite [s] (a test starts at t = 0; a row gives the end of its rate)")
+    t.check("gamma_dot_1_s", c["gamma_dot_1_s"] >= 0, ">= 0 and finite [1/s]")
+    if "tau_pa" not in c:
+        raise DataError(f"{t.src}: missing column 'tau_pa' [Pa]: the measured stresses")
+    t.check("tau_pa", np.isnan(c["tau_pa"]) | (c["tau_pa"] > 0), "> 0 and finite [Pa], or empty (a schedule row)")
+    t.check("tau_pa", np.isnan(c["tau_pa"]) | (c["gamma_dot_1_s"] > 0), "empty where gamma_dot_1_s = 0 (rest)")
+    tests = []
+    ids = list(dict.fromkeys(c["test"].tolist()))
+    for k in ids:
+        idx = np.flatnonzero(c["test"] == k)
+        bad = np.flatnonzero(np.diff(c["t_s"][idx]) <= 0)
+        if bad.size:
+            i = int(idx[bad[0] + 1])
+            raise DataError(
+                f"{t.where(i)}: t_s = {float(c['t_s'][i])!r} does not increase within test {k:g}; allowed: strictly "
+                "increasing (sort each test's rows by t_s)"
+            )
+        if not np.isfinite(c["tau_pa"][idx]).any():
+            raise DataError(f"{t.where(int(idx[0]))}: test {k:g} has no measured stress (every tau_pa is empty)")
+        tests.append(
+            ShearTest(
+                f"{k:g}",
+                c["t_s"][idx],
+                c["gamma_dot_1_s"][idx],
+                c["tau_pa"][idx],
+                c["sigma_ln"][idx] if "sigma_ln" in c else None,
+                Path(t.src).name,
+            )
+        )
+    return tests, t.scalar("weight")
+
+
+def write_table_csv(path, columns: dict, header_comment: str = ""):
+    """Write columns (name -> 1-D array; NaN written as an empty field) as CSV with ``#``
+    comment lines first (state the origin of the data there)."""
+    names = list(columns)
+    arrs = [np.asarray(columns[k], float) for k in names]
+    lines = [f"# {ln}" for ln in header_comment.splitlines()] + [",".join(names)]
+    for i in range(arrs[0].size):
+        lines.append(",".join("" if math.isnan(a[i]) else f"{a[i]:.8g}" for a in arrs))
+    mpmjax.atomic_write_text(Path(path), "\n".join(lines) + "\n")

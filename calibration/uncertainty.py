@@ -22,6 +22,12 @@ F_log above 1e8 (numerically unidentifiable).  The approximation is local (linea
 model at the optimum) and assumes uncorrelated Gaussian errors; for strongly
 non-linear or multi-modal cases, compare multi-start fits.
 
+Which experiment pinned which parameter (:func:`identifiability`): the Fisher information of
+independent experiments is additive, F = sum_e F_e, so the experiments added in turn give the
+partial sums F_1, F_1 + F_2, ... and their standard deviations and correlations, all from the
+one Jacobian above.  The loss weights w_e do not enter F: they steer the optimiser, while the
+information is the data's (their sigma).
+
 Numerical (discretisation) uncertainty: the residuals of a fit at a coarse grid are mostly
 the grid's resolution error, which the Fisher matrix above does not see.  Fitting the same
 data at several cell sizes h_1 > h_2 > ... > h_L (``calibration.multilevel``) measures it:
@@ -55,7 +61,17 @@ import numpy as np
 
 from .experiments import joint_residuals
 
-__all__ = ["NumericalUncertainty", "Uncertainty", "combine", "gauss_newton", "numerical_uncertainty"]
+__all__ = [
+    "NumericalUncertainty",
+    "Uncertainty",
+    "combine",
+    "fisher_by_experiment",
+    "from_fisher",
+    "gauss_newton",
+    "identifiability",
+    "identifiability_lines",
+    "numerical_uncertainty",
+]
 
 # relative std above which a parameter is named poorly identified (statistical or total)
 REL_STD_WARN = 0.5
@@ -69,7 +85,8 @@ class Uncertainty(NamedTuple):
     fisher: F; noise_scale: s_e per experiment (1 when sigma is known); weakest: the least
     determined combination {name: exponent}; condition: condition number of F_log;
     warnings: human-readable warnings; poorly_identified: names whose relative std exceeds
-    the threshold (or is not finite)."""
+    the threshold (or is not finite); fisher_parts: each experiment's F_e (they sum to F);
+    experiment_names: their names."""
 
     names: tuple
     theta: np.ndarray
@@ -83,6 +100,8 @@ class Uncertainty(NamedTuple):
     condition: float
     warnings: list
     poorly_identified: tuple = ()
+    fisher_parts: tuple = ()
+    experiment_names: tuple = ()
 
     def as_dict(self):
         n = self.names
@@ -98,11 +117,9 @@ class Uncertainty(NamedTuple):
         }
 
 
-def gauss_newton(
-    experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN
-) -> Uncertainty:
-    """Gauss-Newton uncertainty of the free parameters of ``pset`` at ``theta`` (name ->
-    value, e.g. ``FitResult.params``).  See the module docstring."""
+def fisher_by_experiment(experiments, pset, theta: dict):
+    """Each experiment's Fisher information at ``theta``: (names, theta vector, [F_e], [s_e]) with
+    F_e = J_e^T J_e / s_e^2 (module docstring), from one forward-mode Jacobian of all residuals."""
     names = pset.free
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     th = jnp.asarray([float(theta[k]) for k in names], dt)
@@ -113,16 +130,33 @@ def gauss_newton(
     rs = [np.asarray(r, float) for r in res(th)]
     Js = [np.asarray(J, float) for J in jax.jacfwd(res)(th)]
     p = len(names)
-    F = np.zeros((p, p))
-    scales = []
+    parts, scales = [], []
     for e, r, J in zip(experiments, rs, Js, strict=True):
         if not np.all(np.isfinite(J)):
             raise FloatingPointError(f"{getattr(e, 'name', 'experiment')}: non-finite Jacobian at {theta}")
         s2 = 1.0 if e.sigma_known else float(np.sum(r**2)) / max(r.size - p, 1)
         s2 = max(s2, np.finfo(float).tiny)
         scales.append(float(np.sqrt(s2)))
-        F += J.T @ J / s2
-    thv = np.asarray(th, float)
+        parts.append(J.T @ J / s2)
+    return tuple(names), np.asarray(th, float), parts, scales
+
+
+def gauss_newton(
+    experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN
+) -> Uncertainty:
+    """Gauss-Newton uncertainty of the free parameters of ``pset`` at ``theta`` (name ->
+    value, e.g. ``FitResult.params``).  See the module docstring."""
+    names, thv, parts, scales = fisher_by_experiment(experiments, pset, theta)
+    unc = from_fisher(names, thv, sum(parts), corr_warn=corr_warn, rel_std_warn=rel_std_warn)
+    labels = tuple(getattr(e, "name", f"experiment {i + 1}") for i, e in enumerate(experiments))
+    return unc._replace(noise_scale=scales, fisher_parts=tuple(parts), experiment_names=labels)
+
+
+def from_fisher(names, thv, F, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN) -> Uncertainty:
+    """Standard deviations, correlations, the weakest combination and the warnings of the
+    Fisher matrix ``F`` of the parameters ``names`` at ``thv`` (module docstring)."""
+    names = tuple(names)
+    p = len(names)
     D = np.diag(np.abs(thv))
     Flog = D @ F @ D
     w, V = np.linalg.eigh(Flog)
@@ -164,7 +198,68 @@ def gauss_newton(
     if warns:
         combo = " * ".join(f"{k}^{a:g}" for k, a in weakest.items())
         warns.append(f"least determined combination: {combo} (relative std {1 / np.sqrt(max(w[0], 1e-300)):.3g})")
-    return Uncertainty(tuple(names), thv, std, rel, cov, corr, F, scales, weakest, cond, warns, poorly)
+    return Uncertainty(names, thv, std, rel, cov, corr, F, [], weakest, cond, warns, poorly)
+
+
+# relative std below which an experiment is said to pin a parameter (identifiability report)
+PIN_REL_STD = 0.1
+
+
+def identifiability(unc: Uncertainty, *, pin_rel_std: float = PIN_REL_STD) -> dict:
+    """Which experiment pinned which parameter: the experiments of ``unc`` (a
+    :func:`gauss_newton` result) added in turn, in their order, with the parameters' standard
+    deviations and correlations after each addition.  The Fisher information of independent
+    experiments is additive, so each step is the inverse of a partial sum of the experiments'
+    F_e (no new model evaluation).  A parameter is *pinned by* the experiment whose addition
+    first brought its relative std below ``pin_rel_std`` (default 0.1); ``None`` if none did.
+    Returns a JSON-ready dict: ``steps`` (per experiment: ``added``, ``std``, ``rel_std``,
+    ``corr``; std null where not determined), ``pinned_by``, ``pin_rel_std``."""
+    if not unc.fisher_parts:
+        raise ValueError("identifiability needs a gauss_newton result (it holds each experiment's Fisher matrix)")
+    names = unc.names
+    F = np.zeros_like(unc.fisher)
+    steps, pinned = [], dict.fromkeys(names)
+
+    def clean(v):
+        return float(v) if np.isfinite(v) else None
+
+    for label, Fe in zip(unc.experiment_names, unc.fisher_parts, strict=True):
+        F = F + Fe
+        u = from_fisher(names, unc.theta, F)
+        steps.append(
+            {
+                "added": label,
+                "std": {k: clean(v) for k, v in zip(names, u.std, strict=True)},
+                "rel_std": {k: clean(v) for k, v in zip(names, u.rel_std, strict=True)},
+                "corr": {a: {b: clean(u.corr[i, j]) for j, b in enumerate(names)} for i, a in enumerate(names)},
+            }
+        )
+        for k, r in zip(names, u.rel_std, strict=True):
+            if pinned[k] is None and np.isfinite(r) and r < pin_rel_std:
+                pinned[k] = label
+    return {"steps": steps, "pinned_by": pinned, "pin_rel_std": pin_rel_std}
+
+
+def identifiability_lines(report: dict) -> list:
+    """The identifiability report as text: per step the relative std of every parameter and
+    the largest correlations, then which experiment pinned which parameter."""
+    steps = report["steps"]
+    names = list(steps[0]["std"])
+    w = max(len(s["added"]) for s in steps) + 2
+    out = ["  identifiability (experiments added in turn; relative std, then |corr| > 0.9):"]
+    out.append("    " + "+ experiment".ljust(w) + " ".join(f"{k:>9s}" for k in names))
+    for s in steps:
+        rel = " ".join(f"{'inf' if s['rel_std'][k] is None else format(s['rel_std'][k], '.3g'):>9s}" for k in names)
+        strong = [
+            f"{a}-{b} {s['corr'][a][b]:+.3f}"
+            for i, a in enumerate(names)
+            for b in names[i + 1 :]
+            if s["corr"][a][b] is not None and abs(s["corr"][a][b]) > 0.9
+        ]
+        out.append("    " + ("+ " + s["added"]).ljust(w) + rel + ("  " + ", ".join(strong) if strong else ""))
+    pins = ", ".join(f"{k}: {v or 'none'}" for k, v in report["pinned_by"].items())
+    out.append(f"  pinned by (relative std first < {report['pin_rel_std']:g}): {pins}")
+    return out
 
 
 class NumericalUncertainty(NamedTuple):
