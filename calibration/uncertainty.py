@@ -55,7 +55,14 @@ import numpy as np
 
 from .experiments import joint_residuals
 
-__all__ = ["NumericalUncertainty", "Uncertainty", "combine", "gauss_newton", "numerical_uncertainty"]
+__all__ = [
+    "NumericalUncertainty",
+    "Uncertainty",
+    "combine",
+    "gauss_newton",
+    "information_terms",
+    "numerical_uncertainty",
+]
 
 # relative std above which a parameter is named poorly identified (statistical or total)
 REL_STD_WARN = 0.5
@@ -98,11 +105,11 @@ class Uncertainty(NamedTuple):
         }
 
 
-def gauss_newton(
-    experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN
-) -> Uncertainty:
-    """Gauss-Newton uncertainty of the free parameters of ``pset`` at ``theta`` (name ->
-    value, e.g. ``FitResult.params``).  See the module docstring."""
+def information_terms(experiments, pset, theta: dict):
+    """The pieces of the Fisher matrix at ``theta`` (name -> value): (theta vector [SI] in the
+    order of ``pset.free``, residual vectors r_e, their Jacobians J_e = dr_e/dtheta (forward
+    mode, ``jax.jacfwd``), and the noise scale s_e per experiment (1 when ``sigma_known``,
+    else sqrt(sum(r_e^2) / max(N_e - p, 1)))), so that F = sum_e J_e^T J_e / s_e^2."""
     names = pset.free
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     th = jnp.asarray([float(theta[k]) for k in names], dt)
@@ -113,16 +120,26 @@ def gauss_newton(
     rs = [np.asarray(r, float) for r in res(th)]
     Js = [np.asarray(J, float) for J in jax.jacfwd(res)(th)]
     p = len(names)
-    F = np.zeros((p, p))
     scales = []
     for e, r, J in zip(experiments, rs, Js, strict=True):
         if not np.all(np.isfinite(J)):
             raise FloatingPointError(f"{getattr(e, 'name', 'experiment')}: non-finite Jacobian at {theta}")
         s2 = 1.0 if e.sigma_known else float(np.sum(r**2)) / max(r.size - p, 1)
-        s2 = max(s2, np.finfo(float).tiny)
-        scales.append(float(np.sqrt(s2)))
-        F += J.T @ J / s2
-    thv = np.asarray(th, float)
+        scales.append(float(np.sqrt(max(s2, np.finfo(float).tiny))))
+    return np.asarray(th, float), rs, Js, scales
+
+
+def gauss_newton(
+    experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN
+) -> Uncertainty:
+    """Gauss-Newton uncertainty of the free parameters of ``pset`` at ``theta`` (name ->
+    value, e.g. ``FitResult.params``).  See the module docstring."""
+    names = pset.free
+    p = len(names)
+    thv, _, Js, scales = information_terms(experiments, pset, theta)
+    F = np.zeros((p, p))
+    for J, s in zip(Js, scales, strict=True):
+        F += J.T @ J / s**2
     D = np.diag(np.abs(thv))
     Flog = D @ F @ D
     w, V = np.linalg.eigh(Flog)
