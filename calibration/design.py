@@ -265,8 +265,9 @@ def _logdet(M, what):
 
 def design(experiments, pset, theta: dict, candidates, *, prior_factor: float = 10.0) -> DesignResult:
     """Rank ``candidates`` (list of :class:`Candidate`) by D-optimal gain over the information of
-    ``experiments`` (may be empty) at the estimate ``theta`` (name -> value [SI] of the free
-    parameters of ``pset``).  See the module docstring."""
+    ``experiments`` (may be empty; experiments, or Candidates for measurements in hand that share a
+    simulation with the candidates, so that it runs once) at the estimate ``theta`` (name -> value
+    [SI] of the free parameters of ``pset``).  See the module docstring."""
     if not candidates:
         raise ValueError("no candidate measurement to rank")
     if not (prior_factor > 1 and math.isfinite(prior_factor)):
@@ -277,28 +278,36 @@ def design(experiments, pset, theta: dict, candidates, *, prior_factor: float = 
     if np.any(th <= 0):
         raise ValueError(f"design works in ln(parameter): every estimate must be > 0; got {dict(zip(names, th))}")
     I0 = np.eye(p) / math.log(prior_factor) ** 2
+    in_hand = [e for e in experiments if isinstance(e, Candidate)]
+    plain = [e for e in experiments if not isinstance(e, Candidate)]
     Icur = np.zeros((p, p))
-    if experiments:
-        for J in _log_jacobians(experiments, pset, theta):
+    if plain:
+        for J in _log_jacobians(plain, pset, theta):
             Icur += J.T @ J
-    # one Jacobian per distinct experiment (candidates that share a simulation share it);
-    # candidates state their noise, so they are whitened with s = 1
+    # one Jacobian per distinct experiment (candidates that share a simulation share it, also with
+    # measurements in hand given as Candidates); candidates state their noise: whitened with s = 1
     exps, index = [], {}
-    for c in candidates:
+    for c in in_hand + list(candidates):
         if not c.experiment.sigma_known:
             raise ValueError(f"candidate {c.label}: its noise must be stated (sigma_known)")
         if id(c.experiment) not in index:
             index[id(c.experiment)] = len(exps)
             exps.append(c.experiment)
     Jall = _log_jacobians(exps, pset, theta)
+
+    def rows(c):
+        J = Jall[index[id(c.experiment)]]
+        return J if c.rows is None else J[c.rows]
+
+    for c in in_hand:
+        Icur += rows(c).T @ rows(c)
     A = I0 + Icur
     ld0 = _logdet(A, "current data and prior")
     cov0 = np.linalg.inv(A)
     sd0 = np.sqrt(np.diag(cov0))
     gains, sda, pins, infos = [], [], [], []
     for c in candidates:
-        J = Jall[index[id(c.experiment)]]
-        J = J if c.rows is None else J[c.rows]
+        J = rows(c)
         Ic = J.T @ J
         B = A + Ic
         gains.append(_logdet(B, c.label) - ld0)

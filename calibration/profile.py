@@ -49,12 +49,26 @@ from .fit import fit
 from .params import ParameterSet
 from .uncertainty import gauss_newton
 
-__all__ = ["CHI2_95", "ParameterProfile", "chi2_experiments", "profile_likelihood", "plot_profiles"]
+__all__ = [
+    "CHI2_95",
+    "PROFILE_DEFINITION",
+    "ParameterProfile",
+    "check_profile_options",
+    "chi2_experiments",
+    "plot_profiles",
+    "profile_likelihood",
+]
 
 # 0.95 quantile of the chi-squared distribution with one degree of freedom (= 1.959964^2)
 CHI2_95 = 3.841458820694124
 # the profile and Gauss-Newton intervals "disagree" beyond this factor (either way, either side)
 DISAGREE_FACTOR = 2.0
+PROFILE_DEFINITION = (
+    "profile_interval_95: where chi^2 - chi^2_min <= 3.84 with the parameter fixed and the others re-optimised; "
+    "chi^2 = sum_e sum_i r_ei^2 / s_e^2 (s_e: the Gauss-Newton noise scale, 1 where sigma is known); null: "
+    "beyond the grid; gauss_newton_interval_95: z_hat +- 1.96 sigma_z in the transformed coordinate, mapped back; "
+    "a warning where the two half-widths differ by more than a factor of 2 on either side"
+)
 
 
 class ParameterProfile(NamedTuple):
@@ -133,6 +147,18 @@ def _crossing(z, root, centre, side):
     return None
 
 
+def check_profile_options(n_points, width_sigma, max_iter, prefix=""):
+    """ValueError naming the option (``prefix`` + name), its value and the allowed range."""
+    if int(n_points) != n_points or n_points < 3 or n_points % 2 == 0:
+        raise ValueError(
+            f"{prefix}points = {n_points!r}; allowed: an odd integer >= 3 (the estimate is the middle point)"
+        )
+    if not (width_sigma > 0 and math.isfinite(width_sigma)):
+        raise ValueError(f"{prefix}width = {width_sigma!r}; allowed range: > 0 (Gauss-Newton standard deviations)")
+    if int(max_iter) != max_iter or max_iter < 1:
+        raise ValueError(f"{prefix}max-iter = {max_iter!r}; allowed range: integer >= 1")
+
+
 def profile_likelihood(
     experiments,
     pset: ParameterSet,
@@ -149,12 +175,7 @@ def profile_likelihood(
     ``theta`` (name -> value [SI], e.g. ``FitResult.params``); see the module docstring.
     unc: ``gauss_newton(experiments, pset, theta)`` (computed when not given).  Returns
     name -> :class:`ParameterProfile`."""
-    if int(n_points) != n_points or n_points < 3 or n_points % 2 == 0:
-        raise ValueError(f"n_points = {n_points!r}; allowed: an odd integer >= 3 (the estimate is the middle one)")
-    if not (width_sigma > 0 and math.isfinite(width_sigma)):
-        raise ValueError(f"width_sigma = {width_sigma!r}; allowed range: > 0 (Gauss-Newton standard deviations)")
-    if int(max_iter) != max_iter or max_iter < 1:
-        raise ValueError(f"max_iter = {max_iter!r}; allowed range: integer >= 1")
+    check_profile_options(n_points, width_sigma, max_iter)
     names = tuple(pset.free if names is None else names)
     bad = [k for k in names if k not in pset.free]
     if bad:
