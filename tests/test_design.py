@@ -57,10 +57,10 @@ def test_gain_equals_log_det_of_the_stacked_jacobian():
     ]
     res = design([current], ps, theta, cands, prior_factor=10.0)
 
+    u = jnp.log(jnp.asarray([theta[k] for k in ps.free]))
+
     def jac(e):
-        return np.asarray(jax.jacfwd(lambda u: e.residuals(dict(zip(ps.free, jnp.exp(u), strict=True)))))(
-            jnp.log(jnp.asarray([theta[k] for k in ps.free]))
-        ))
+        return np.asarray(jax.jacfwd(lambda v: e.residuals(dict(zip(ps.free, jnp.exp(v), strict=True))))(u))
 
     I0 = np.eye(4) / math.log(10.0) ** 2
     J0 = jac(current)
@@ -106,28 +106,30 @@ def _rheo_material(mat):
 
 
 def test_predicted_std_after_the_top_candidate_matches_the_refit():
-    """Start from a flow curve at low rates only (4 points, 0.1-0.5 1/s, synthetic, 5 % noise, seed
-    1; fit mu0, n and T with alpha fixed), rank three candidate flow curves (1-5, 10-100 1/s and a
-    repeat of the low rates), make the top candidate's data (synthetic, truth plus 5 % noise, seed 2),
-    refit both together and compare the Gauss-Newton std of the refit with the design's
+    """Start from a 4-point flow curve across the crossover (0.3-30 1/s, alpha T gdot = 0.15-15:
+    mu0, n and T, alpha fixed, are all identified, if loosely; synthetic, 5 % noise, seed 1), rank
+    three candidate flow curves (0.02-0.2 1/s, 50-500 1/s and a repeat), make the top candidate's
+    data (synthetic, truth plus 5 % noise, seed 2), refit both together and compare the Gauss-Newton std of the refit with the design's
     prediction.  They differ by where the Jacobian is evaluated (the first estimate against the
     refit), by the new data's noise realisation (sigma is known, so only through the estimate) and by
     the weak prior (factor 10, negligible once identified): asserted within a factor 1.5 for every
-    parameter (measured in docs/calibration.md).  Flow curves (closed-form model) keep this under a
-    few seconds; the dam-break twin with a rheometer transient is in docs/bench/design_twin.py."""
+    parameter (measured: 1.03, 1.00, 1.00).  Here the repeat ranks first (2.08 nats = 3 ln 2: it
+    doubles the information in all three directions) above the low (1.01) and high (1.18) rates,
+    which mostly add one direction each.  Flow curves (closed-form model) keep this cheap
+    (34 s CPU, mostly compiling the two fits); the dam-break twin with a rheometer transient is in docs/bench/design_twin.py."""
     mat = _material()
-    low = np.geomspace(0.1, 0.5, 4)
+    mid = np.geomspace(0.3, 30.0, 4)
 
     def curve(rates, seed):
         tau, _ = mpmjax.rheometer.steady_flow_curve(mat, jnp.asarray(rates))
         tau = np.asarray(tau) * np.exp(0.05 * np.random.default_rng(seed).standard_normal(len(rates)))
         return FlowCurveExperiment(mat, rates, tau, sigma_ln=0.05)
 
-    fc = curve(low, 1)
+    fc = curve(mid, 1)
     ps = ParameterSet.from_names(["mu0", "n", "T"], mat, init={"mu0": 5.0, "n": 2.0, "T": 0.4})
     r0 = fit([fc], ps, max_iter=60, rtol=1e-10, patience=3, progress=False)
     u0 = gauss_newton([fc], ps, r0.params)
-    rate_sets = (np.geomspace(1.0, 5.0, 4), np.geomspace(10.0, 100.0, 4), low)
+    rate_sets = (np.geomspace(0.02, 0.2, 4), np.geomspace(50.0, 500.0, 4), mid)
     cands = [flow_curve_candidate(mat, g) for g in rate_sets]
     res = design([fc], ps, r0.params, cands)
     top = res.ranking[0]
@@ -136,9 +138,8 @@ def test_predicted_std_after_the_top_candidate_matches_the_refit():
     r1 = fit([fc, new], ps1, max_iter=60, rtol=1e-10, patience=3, progress=False)
     u1 = gauss_newton([fc, new], ps1, r1.params)
     pred = res.std_after[top] * np.asarray([r0.params[k] for k in ps.free])
-    print(f"\nlow rates alone {r0.params} std {u0.std}; top candidate {cands[top].label}; refit {r1.params}; "
+    print(f"\nfirst curve alone {r0.params} std {u0.std}; top candidate {cands[top].label}; refit {r1.params}; "
           f"predicted std {pred}, refit std {u1.std}, ratio {pred / u1.std}")
-    assert res.gains[2] == min(res.gains)  # the repeat adds least
     ratio = pred / u1.std
     assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), ratio
 

@@ -66,7 +66,7 @@ def main(out=None):
     mat = setup.params.material
     exp = ProfileExperiment(setup, profs, bandwidth_m=0.04, name="profiles 0.3, 0.6 s")
     ps = ParameterSet.from_names(list(FIT), mat, init={k: START[k] for k in FIT})
-    r0 = fit([exp], ps, max_iter=25, rtol=1e-6, patience=3, progress=False)
+    r0 = fit([exp], ps, max_iter=12, rtol=1e-5, patience=2, progress=False)
     u0 = gauss_newton([exp], ps, r0.params)
     t_fit0 = time.process_time() - t0
     print(f"profiles alone: {r0.params} loss {r0.loss_final:.4g} ({r0.iterations} it, {r0.reason}), "
@@ -89,7 +89,7 @@ def main(out=None):
     new = synthetic_transient(best, rheo, seed=8)
     ps1 = ParameterSet.from_names(list(FIT), mat, init=r0.params)
     t2 = time.process_time()
-    r1 = fit([exp, new], ps1, max_iter=25, rtol=1e-6, patience=3, progress=False)
+    r1 = fit([exp, new], ps1, max_iter=12, rtol=1e-5, patience=2, progress=False)
     u1 = gauss_newton([exp, new], ps1, r1.params)
     t_fit1 = time.process_time() - t2
     k0 = res.ranking[0]
