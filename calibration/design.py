@@ -361,6 +361,6 @@ def plot_design(res: DesignResult, path, top: int = 20):
     ax.set_xlim(0, max(1e-9, float(np.max(res.gains))) * 1.6)
     ax.grid(alpha=0.3, axis="x")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # long candidate labels
     plt.close(fig)
 

@@ -270,8 +270,8 @@ def plot_profiles(profiles: dict, path, units=None, transforms=None):
             for v in lim:
                 if v is not None:
                     ax.axvline(v, color=c, lw=0.8, alpha=0.6)
-        if transforms.get(k, "log") == "log":
-            ax.set_xscale("log")
+        if transforms.get(k, "log") == "log" and p.theta[-1] / p.theta[0] > 10:
+            ax.set_xscale("log")  # only where the grid spans a decade: short log axes label badly
         ax.set_xlabel(f"{k} [{units.get(k, 'SI')}]")
         ax.set_ylim(0, max(2 * CHI2_95, float(np.nanmax(p.delta_chi2)) * 1.05))
         ax.set_title(("WARNING: " if p.warning else "") + f"{k}: 95 % where < 3.84", fontsize=8)
