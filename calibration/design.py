@@ -342,6 +342,7 @@ def table_lines(res: DesignResult) -> list:
 def plot_design(res: DesignResult, path, top: int = 20):
     """design.png: D-optimal gain per candidate (bars, best at the top), labelled with the pinned
     parameter and its relative std before -> after."""
+    # matplotlib only when plots are written (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")

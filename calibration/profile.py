@@ -251,6 +251,7 @@ def profile_likelihood(
 def plot_profiles(profiles: dict, path, units=None, transforms=None):
     """profile_likelihood.png: Delta chi^2 against each parameter, the Gauss-Newton quadratic
     ((z - z_hat) / sigma_z)^2 dashed, the 3.84 level and both 95 % intervals."""
+    # matplotlib only when plots are written (optional heavy import)
     import matplotlib
 
     matplotlib.use("Agg")

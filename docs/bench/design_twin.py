@@ -25,7 +25,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import mpmjax  # noqa: E402
-from calibration.design import ProfileRequest, design, profile_candidates, rheometer_candidate, table_lines  # noqa: E402
+from calibration.design import AfterRest, ProfileRequest, design, profile_candidates, rheometer_candidate, table_lines  # noqa: E402
 from calibration.experiments import ProfileExperiment, TransientExperiment  # noqa: E402
 from calibration.fit import fit  # noqa: E402
 from calibration.params import ParameterSet  # noqa: E402
@@ -53,8 +53,6 @@ def synthetic_transient(cand, truth_mat, seed):
     exp = TransientExperiment(truth_mat, np.asarray(inner._t), np.asarray(inner._g), mu, sigma_ln=SIGMA_LN,
                               name=cand.label)
     if s["rest_s"]:
-        from calibration.design import AfterRest
-
         return AfterRest(exp, s["rest_s"], truth_mat)
     return exp
 
