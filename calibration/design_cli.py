@@ -184,7 +184,9 @@ def add_design_arguments(p: argparse.ArgumentParser):
     p.add_argument("--sigma-m", type=float, help="noise of the data in hand [m] where they give none")
     p.add_argument("--bandwidth-m", type=float, help="kernel bandwidth of the model profile [m] (default: cell size)")
     p.add_argument("--flow-curve", help="rheometer flow-curve points in hand: CSV with gamma_dot_1_s, tau_pa")
-    p.add_argument("--candidates", metavar="TOML", help="candidate measurements ([[candidate]] tables, docs/calibration.md)")
+    p.add_argument(
+        "--candidates", metavar="TOML", help="candidate measurements ([[candidate]] tables, docs/calibration.md)"
+    )
     p.add_argument("--profile-times", metavar="T1,T2", help="candidate profiles at these times [s]")
     p.add_argument("--station-spacing-m", metavar="S1,S2", help="their station spacing(s) [m] (default 2 cells)")
     p.add_argument("--profile-sigma-m", type=float, help="their height noise [m] (default: the data's)")
@@ -196,7 +198,9 @@ def add_design_arguments(p: argparse.ArgumentParser):
     p.add_argument("--sigma-ln", type=float, default=0.05, help="relative noise of rheometer data (default 0.05)")
     p.add_argument("--dambreak-rest-times", metavar="S1,S2",
                    help="candidate: the dam break repeated after these rests [s], profiles at --profile-times")
-    p.add_argument("--prior-factor", type=float, help="prior: each parameter known to this factor at 1 sigma (default 10)")
+    p.add_argument(
+        "--prior-factor", type=float, help="prior: each parameter known to this factor at 1 sigma (default 10)"
+    )
     p.add_argument("--out", default="design-out", help="output folder (default design-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 

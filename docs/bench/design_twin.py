@@ -25,7 +25,14 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 import mpmjax  # noqa: E402
-from calibration.design import AfterRest, ProfileRequest, design, profile_candidates, rheometer_candidate, table_lines  # noqa: E402
+from calibration.design import (  # noqa: E402
+    AfterRest,
+    ProfileRequest,
+    design,
+    profile_candidates,
+    rheometer_candidate,
+    table_lines,
+)
 from calibration.experiments import ProfileExperiment, TransientExperiment  # noqa: E402
 from calibration.fit import fit  # noqa: E402
 from calibration.params import ParameterSet  # noqa: E402
