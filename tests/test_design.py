@@ -110,8 +110,8 @@ def test_predicted_std_after_the_top_candidate_matches_the_refit():
     mu0, n and T, alpha fixed, are all identified, if loosely; synthetic, 5 % noise, seed 1), rank
     three candidate flow curves (0.02-0.2 1/s, 50-500 1/s and a repeat), make the top candidate's
     data (synthetic, truth plus 5 % noise, seed 2), refit both together and compare the
-    Gauss-Newton std of the refit with the design's prediction.  They differ by where the Jacobian is evaluated (the first estimate against the
-    refit), by the new data's noise realisation (sigma is known, so only through the estimate) and by
+    Gauss-Newton std of the refit with the design's prediction.  They differ by where the Jacobian
+    is evaluated (the first estimate against the refit), by the new data's noise realisation (sigma is known, so only through the estimate) and by
     the weak prior (factor 10, negligible once identified): asserted within a factor 1.5 for every
     parameter (measured: 1.03, 1.00, 1.00).  Here the repeat ranks first (2.08 nats = 3 ln 2: it
     doubles the information in all three directions) above the low (1.01) and high (1.18) rates,
