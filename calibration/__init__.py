@@ -9,6 +9,9 @@
 * ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam, multi-start by ``vmap``.
 * ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability;
   ``numerical_uncertainty`` / ``combine``: the discretisation std from fits at several cell sizes.
+* ``design`` (``calibration.design``): rank candidate measurements by D-optimal gain
+  (``mpmjax design``); ``profile_likelihood`` (``calibration.profile``): likelihood-ratio intervals
+  with the other parameters re-optimised (``mpmjax calibrate --profile``).
 * ``fit_multilevel`` (``calibration.multilevel``): multi-fidelity fit, coarse cell size then finer ones.
 * ``sweep`` (``calibration.sweep``): a parameter grid as one ``vmap`` batch, sharded over devices.
 * the differentiable observables (height profile, smooth front, deposited volume), re-exported
@@ -38,23 +41,37 @@ from .experiments import (
     joint_loss,
     overshoot_test,
 )
+from .design import (
+    Candidate,
+    DesignResult,
+    ProfileRequest,
+    design,
+    flow_curve_candidate,
+    profile_candidates,
+    rheometer_candidate,
+)
 from .fit import FitResult, fit
 from .multilevel import MultilevelResult, experiments_at_cell_size, fit_multilevel
 from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
+from .profile import ParameterProfile, profile_likelihood
 from .sweep import sweep
 from .uncertainty import NumericalUncertainty, Uncertainty, combine, gauss_newton, numerical_uncertainty
 
 __all__ = [
     "DEFAULT_BOUNDS",
+    "Candidate",
     "DataError",
+    "DesignResult",
     "FitResult",
     "FlowCurveExperiment",
     "MultilevelResult",
     "NumericalUncertainty",
     "ParamSpec",
+    "ParameterProfile",
     "ParameterSet",
     "Profile",
     "ProfileExperiment",
+    "ProfileRequest",
     "RestTimeExperiment",
     "RunoutSeries",
     "RunoutSeriesExperiment",
@@ -64,9 +81,11 @@ __all__ = [
     "Uncertainty",
     "combine",
     "deposited_volume",
+    "design",
     "experiments_at_cell_size",
     "fit",
     "fit_multilevel",
+    "flow_curve_candidate",
     "gauss_newton",
     "gaussian_kernel",
     "height_profile",
@@ -78,6 +97,9 @@ __all__ = [
     "numerical_uncertainty",
     "overshoot_test",
     "particle_volume",
+    "profile_candidates",
+    "profile_likelihood",
+    "rheometer_candidate",
     "smooth_front",
     "sweep",
     "write_profiles_csv",

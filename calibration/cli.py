@@ -27,6 +27,7 @@ from .experiments import (
 )
 from .multilevel import check_levels, experiments_at_cell_size, fit_multilevel
 from .params import UNITS, ParameterSet
+from .profile import PROFILE_DEFINITION, check_profile_options, plot_profiles, profile_likelihood
 from .sweep import FIELD_KEYS, parse_vary, sweep, write_sweep
 from .uncertainty import REL_STD_WARN, identifiability, identifiability_lines
 
@@ -155,6 +156,20 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     p.add_argument(
         "--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)"
     )
+    p.add_argument(
+        "--profile",
+        action="store_true",
+        help="profile likelihood of each fitted parameter (re-optimising the others): 95 %% likelihood-ratio "
+        "intervals in fit.json (profile_interval_95), profile_likelihood.png, and a warning where they differ "
+        "from the Gauss-Newton ones by more than a factor of 2",
+    )
+    p.add_argument("--profile-points", type=int, default=9, help="grid points per profile (odd, default 9)")
+    p.add_argument(
+        "--profile-width", type=float, default=4.0, help="grid half-width in Gauss-Newton std (default 4)"
+    )
+    p.add_argument(
+        "--profile-max-iter", type=int, default=10, help="L-BFGS iterations per profile point (default 10)"
+    )
     p.add_argument("--out", default="calibration-out", help="output folder (default calibration-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
@@ -211,6 +226,22 @@ def _load_flow_curve(path):
     return a[:, head.index("gamma_dot_1_s")], a[:, head.index("tau_pa")]
 
 
+def _scene_overrides(args, times_s, init):
+    """(scene config, overrides) for ``args.scene`` with ``args.set``: frames aligned to the data
+    times ``times_s`` [s] (unless the user set time.t_end_s or time.n_frames) and the scene's
+    material keys set to ``init`` (so range errors name the scene key)."""
+    overrides = list(args.set or [])
+    keys = {o.split("=", 1)[0].strip() for o in overrides}
+    cfg0 = mpmjax.load_scene(args.scene, overrides)
+    if not ({"time.t_end_s", "time.n_frames"} & keys):
+        t_end, nf = frames_for(list(times_s), cfg0["time.t_end_s"], cfg0["time.n_frames"])
+        overrides += [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]
+    for k, v in init.items():
+        if k in FIELD_KEYS:
+            overrides.append(f"{FIELD_KEYS[k]}={v!r}")  # validated as a scene value (range errors name the key)
+    return cfg0, overrides
+
+
 def calibrate(args) -> dict:
     """Run a calibration from parsed arguments; returns the fit.json document."""
     out = Path(args.out)
@@ -232,16 +263,10 @@ def calibrate(args) -> dict:
     names = [s.strip() for s in args.fit.split(",") if s.strip()]
     if not names:
         raise ValueError("--fit: name at least one parameter, e.g. --fit mu0,n")
-    overrides = list(args.set or [])
-    keys = {o.split("=", 1)[0].strip() for o in overrides}
-    cfg0 = mpmjax.load_scene(args.scene, overrides)
-    if not ({"time.t_end_s", "time.n_frames"} & keys):
-        t_end, nf = frames_for(data_times, cfg0["time.t_end_s"], cfg0["time.n_frames"])
-        overrides += [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]
     init = _kv(args.init, "--init")
-    for k, v in init.items():
-        if k in FIELD_KEYS:
-            overrides.append(f"{FIELD_KEYS[k]}={v!r}")  # validated as a scene value (range errors name the key)
+    cfg0, overrides = _scene_overrides(args, data_times, init)
+    if args.profile:
+        check_profile_options(args.profile_points, args.profile_width, args.profile_max_iter, "--profile-")
     if args.refine_max_iter is not None and args.refine_max_iter < 1:
         raise ValueError(f"--refine-max-iter = {args.refine_max_iter}; allowed range: integer >= 1")
     levels = _levels(args, float(cfg0["domain.cell_size_m"]))
@@ -398,6 +423,14 @@ def calibrate(args) -> dict:
             "numerical (discretisation) uncertainty not estimated: one level; the std is statistical only and "
             "misses the grid's resolution bias (rerun with --refine 1 or --levels)"
         )
+    profiles_lr = None
+    if args.profile:
+        log(f"calibrate: profile likelihood of {', '.join(pset.free)} ({args.profile_points} points each)")
+        profiles_lr = profile_likelihood(
+            exps, pset, res.params, unc, n_points=args.profile_points, width_sigma=args.profile_width,
+            max_iter=args.profile_max_iter,
+        )
+        warnings += [p.warning for p in profiles_lr.values() if p.warning]
     for w in warnings:
         log(f"calibrate: warning: {w}")
     finest = f"domain.cell_size_m={levels[-1]!r}"
@@ -474,6 +507,16 @@ def calibrate(args) -> dict:
         "sigma_known": exps[0].sigma_known,
         "code_version": mpmjax.__version__,
     }
+    if profiles_lr is not None:
+        doc["profile_interval_95"] = {k: list(p.interval_95) for k, p in profiles_lr.items()}
+        doc["profile_likelihood"] = {
+            "definition": PROFILE_DEFINITION,
+            **{k: p.as_dict(UNITS.get(k, "SI")) for k, p in profiles_lr.items()},
+        }
+        plot_profiles(
+            profiles_lr, out / "profile_likelihood.png", {k: UNITS.get(k, "SI") for k in pset.free},
+            {k: pset.specs[k].transform for k in pset.free},
+        )
     mpmjax.atomic_write_text(out / "fit.json", json.dumps(doc, indent=1))
     (out / "fit_progress.json").unlink(missing_ok=True)
     _plots(out, exps[0], pset, ml, profiles, doc)
@@ -487,7 +530,10 @@ def calibrate(args) -> dict:
     log(f"calibrate: {wall:.1f} s; at h = {levels[-1]:g} m:")
     for line in summary_lines(doc) + identifiability_lines(doc["identifiability"]):
         log(line)
-    log(f"wrote {out / 'fit.json'}, {out / 'fit_profiles.png'}, {out / 'loss_history.png'}")
+    log(
+        f"wrote {out / 'fit.json'}, {out / 'fit_profiles.png'}, {out / 'loss_history.png'}"
+        + (f", {out / 'profile_likelihood.png'}" if profiles_lr is not None else "")
+    )
     return doc
 
 
@@ -514,6 +560,15 @@ def summary_lines(doc) -> list:
         if k in doc["poorly_identified"]:
             s += "  POORLY IDENTIFIED"
         out.append(s)
+    for k, p in doc.get("profile_likelihood", {}).items():
+        if k == "definition":
+            continue
+        lo, hi = (_fmt(v) for v in p["profile_interval_95"])
+        glo, ghi = (_fmt(v) for v in p["gauss_newton_interval_95"])
+        out.append(
+            f"  {k}: 95 % profile-likelihood interval {lo} .. {hi}, Gauss-Newton {glo} .. {ghi}"
+            + ("  DISAGREE (factor > 2)" if p["warning"] else "")
+        )
     if num is not None:
         for k, r in num["richardson"].items():
             if r["extrapolated"] is not None:

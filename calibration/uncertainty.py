@@ -70,6 +70,7 @@ __all__ = [
     "gauss_newton",
     "identifiability",
     "identifiability_lines",
+    "information_terms",
     "numerical_uncertainty",
 ]
 
@@ -117,9 +118,11 @@ class Uncertainty(NamedTuple):
         }
 
 
-def fisher_by_experiment(experiments, pset, theta: dict):
-    """Each experiment's Fisher information at ``theta``: (names, theta vector, [F_e], [s_e]) with
-    F_e = J_e^T J_e / s_e^2 (module docstring), from one forward-mode Jacobian of all residuals."""
+def information_terms(experiments, pset, theta: dict):
+    """The pieces of the Fisher matrix at ``theta`` (name -> value): (theta vector [SI] in the
+    order of ``pset.free``, residual vectors r_e, their Jacobians J_e = dr_e/dtheta (forward
+    mode, ``jax.jacfwd``), and the noise scale s_e per experiment (1 when ``sigma_known``,
+    else sqrt(sum(r_e^2) / max(N_e - p, 1)))), so that F = sum_e J_e^T J_e / s_e^2."""
     names = pset.free
     dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
     th = jnp.asarray([float(theta[k]) for k in names], dt)
@@ -130,15 +133,21 @@ def fisher_by_experiment(experiments, pset, theta: dict):
     rs = [np.asarray(r, float) for r in res(th)]
     Js = [np.asarray(J, float) for J in jax.jacfwd(res)(th)]
     p = len(names)
-    parts, scales = [], []
+    scales = []
     for e, r, J in zip(experiments, rs, Js, strict=True):
         if not np.all(np.isfinite(J)):
             raise FloatingPointError(f"{getattr(e, 'name', 'experiment')}: non-finite Jacobian at {theta}")
         s2 = 1.0 if e.sigma_known else float(np.sum(r**2)) / max(r.size - p, 1)
-        s2 = max(s2, np.finfo(float).tiny)
-        scales.append(float(np.sqrt(s2)))
-        parts.append(J.T @ J / s2)
-    return tuple(names), np.asarray(th, float), parts, scales
+        scales.append(float(np.sqrt(max(s2, np.finfo(float).tiny))))
+    return np.asarray(th, float), rs, Js, scales
+
+
+def fisher_by_experiment(experiments, pset, theta: dict):
+    """Each experiment's Fisher information at ``theta``: (names, theta vector, [F_e], [s_e]) with
+    F_e = J_e^T J_e / s_e^2 (module docstring), from one forward-mode Jacobian of all residuals."""
+    thv, _, Js, scales = information_terms(experiments, pset, theta)
+    parts = [J.T @ J / s**2 for J, s in zip(Js, scales, strict=True)]
+    return tuple(pset.free), thv, parts, scales
 
 
 def gauss_newton(

@@ -1,5 +1,5 @@
 """Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | study |
-calibrate | sweep``: argument parsing and dispatch only; the work is done by the library
+calibrate | design | sweep``: argument parsing and dispatch only; the work is done by the library
 (``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
 ``calibration``.
 
@@ -21,6 +21,7 @@ import tomllib
 from pathlib import Path
 
 from calibration import cli as calcli
+from calibration import design_cli
 
 from . import rheometer
 from ._schema import _REQ, SCHEMA, SceneError, builtin_scenes
@@ -197,6 +198,9 @@ def main(argv=None) -> int:
     pc = sub.add_parser("calibrate", help="fit material parameters to measured height profiles (optax, gradients)")
     calcli.add_calibrate_arguments(pc)
     pc.set_defaults(fn=calcli.cmd_calibrate)
+    pdz = sub.add_parser("design", help="rank candidate measurements by the information they add (D-optimal)")
+    design_cli.add_design_arguments(pdz)
+    pdz.set_defaults(fn=design_cli.cmd_design)
     psw = sub.add_parser("sweep", help="run a grid of material parameters as one vmap batch (runout, time to rest)")
     calcli.add_sweep_arguments(psw)
     psw.set_defaults(fn=calcli.cmd_sweep)
