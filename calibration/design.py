@@ -46,7 +46,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .data import Profile
-from .experiments import FlowCurveExperiment, ProfileExperiment, TransientExperiment
+from .experiments import FlowCurveExperiment, ProfileExperiment, TransientExperiment, structure_after_rest
 from .uncertainty import information_terms
 
 __all__ = [
@@ -155,7 +155,7 @@ class AfterRest:
     def residuals(self, values: dict):
         lam = values.get("lambda0", self._base.lambda0)
         T = values.get("T", self._base.T)
-        return self.inner.residuals({**values, "lambda0": lam + self.rest_s / T})
+        return self.inner.residuals({**values, "lambda0": structure_after_rest(lam, self.rest_s, T)})
 
 
 def _stations(setup, spacing_m, x_range_m):

@@ -80,6 +80,12 @@ def _frame_indices(scene, times, name, what):
     return tuple(idx), tuple(offsets), frame_dt
 
 
+
+def structure_after_rest(lambda_rest, rest_time_s, T):
+    """Coussot structure [-] after ``rest_time_s`` [s] at rest from ``lambda_rest``: at zero shear
+    rate dlambda/dt = 1/T, so lambda = lambda_rest + t_rest / T (differentiable in all three)."""
+    return lambda_rest + rest_time_s / T
+
 class _SceneExperiment:
     """What the MPM experiments share: the scene, the material at the fitted values (with the
     initial structure after a rest, ``rest_time_s``), the run, and the observables of a frame.
@@ -132,7 +138,7 @@ class _SceneExperiment:
         mat = base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items()})
         if self.rest_time_s is not None:
             lam = mat.lambda0 if self.lambda_rest is None else jnp.asarray(self.lambda_rest, dt)
-            mat = mat._replace(lambda0=lam + self.rest_time_s / mat.T)
+            mat = mat._replace(lambda0=structure_after_rest(lam, self.rest_time_s, mat.T))
         return mat
 
     def run(self, values: dict, n_frames: int | None = None):
