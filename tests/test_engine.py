@@ -228,7 +228,7 @@ def _dambreak(dim, nz=2, shape="quadratic"):
             "z_hi": "slip",
         }
         body = {"lo_m": [0.0, 0.0, 0.0], "hi_m": [DB_BLOCK, w, DB_BLOCK]}
-    cfg = _cfg(dim, lo, hi, DB_H, faces, [body], t_end=DB_T, n_frames=6, mu=1.0, numerics={"shape": shape})
+    cfg = _cfg(dim, lo, hi, DB_H, faces, [body], t_end=DB_T, n_frames=6, mu=1.0, numerics={"shape": shape, "ppc": 2})
     s = m.build(cfg)
     final, frames = m.run(s.scene, s.state, s.params)
     return s, final, frames

@@ -20,7 +20,7 @@ from mpmjax import _metrics, plotting, run_scene  # noqa: E402
 from mpmjax._io import read_result  # noqa: E402
 
 # 2 m x 0.24 m; 0.2 m BASE Coussot block at 2 cm cells (400 particles); 0.5 s of the collapse, 5 frames
-OVERRIDES = ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5"]
+OVERRIDES = ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5", "numerics.ppc=2"]  # figures measured at ppc 2
 
 
 @pytest.fixture(scope="module")

@@ -322,7 +322,9 @@ _DAMBREAK_CACHE = {}
 def _dambreak(cell, alpha, extra=None):
     key = (cell, alpha, tuple(sorted((extra or {}).items())))
     if key not in _DAMBREAK_CACHE:
-        over = {"domain.cell_size_m": cell, "material.alpha": alpha, **(extra or {})}
+        # ppc 2: the runouts and J bounds below were measured there (at ppc 3, run 7c at h = 0.02 m
+        # reaches J = 2.18 in the thin front: docs/validation.md, "Defaults")
+        over = {"domain.cell_size_m": cell, "material.alpha": alpha, "numerics.ppc": 2, **(extra or {})}
         s = m.build(m.load_scene("dambreak-lab", over))
         final, frames = m.run(s.scene, s.state, s.params)
         ro = np.asarray(m.runout(frames.x, frames.active, s.info["runout_axis"], s.info["runout_origin_m"],

@@ -22,7 +22,7 @@ import json, jax, numpy as np
 from mpmjax._build import build
 from mpmjax._schema import load_scene
 from mpmjax._simulate import make_chunk
-ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.15", "time.n_frames=1", "numerics.dtype=float64"]
+ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.15", "time.n_frames=1", "numerics.dtype=float64", "numerics.ppc=2"]
 setup = build(load_scene("dambreak-lab", ov + ["numerics.devices=2"]))
 sc, p = setup.scene, setup.params
 s0 = jax.tree_util.tree_map(lambda a: a[:-1] if a.ndim and a.shape[0] == sc.n_particles else a, setup.state)
@@ -70,7 +70,7 @@ import json, jax, jax.numpy as jnp
 from mpmjax._build import build
 from mpmjax._schema import load_scene
 from mpmjax._simulate import simulate
-ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.1", "time.n_frames=2", "numerics.dtype=float64", "numerics.devices=2"]
+ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.1", "time.n_frames=2", "numerics.dtype=float64", "numerics.devices=2", "numerics.ppc=2"]
 setup = build(load_scene("dambreak-lab", ov))
 sc, p, s0 = setup.scene, setup.params, setup.state
 out = {}

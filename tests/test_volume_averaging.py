@@ -190,7 +190,7 @@ def test_deposit_bottom_row_volume_ratio():
     for va in ("none", "jbar"):
         cfg = m.load_scene(
             "dambreak-lab",
-            ["time.t_end_s=3.0", "time.n_frames=1", "domain.cell_size_m=0.02", f"numerics.volume_averaging={va}"],
+            ["time.t_end_s=3.0", "time.n_frames=1", "domain.cell_size_m=0.02", f"numerics.volume_averaging={va}", "numerics.ppc=2"],
         )
         s = m.build(cfg)
         fin, _ = m.run(s.scene, s.state, s.params)
