@@ -63,6 +63,7 @@ def test_twin_data_are_what_the_header_says(twin):
     assert max(abs(o) for o in exp.time_offsets_s) < 1e-9
 
 
+@pytest.mark.slow  # CI time: the notebook test runs the same fit (docs/calibration.md, figures)
 def test_twin_fit_mu0_lambda0_from_a_factor_two_guess(twin):
     setup, exp = twin
     ps = ParameterSet.from_names(["mu0", "lambda0"], setup.params.material, init={"mu0": 8.0, "lambda0": 3.0})
