@@ -7,8 +7,8 @@ bash scripts/setup.sh || exit 1
 # pytest-xdist: one worker per core (MPMJAX_TEST_WORKERS overrides; 0 runs in this process).  Most
 # of a test's time is XLA compilation and serial scatter-adds, one core each; measured on the idle
 # 2-core VM: 431 tests in 22 min with 2 workers, where 367 tests took 23 min in one process;
-# 2026-12-01: 476 tests in 30 min with 2 workers while a 1-core study ran beside them for 20 min
-# (over the ~15 min CI target: the slowest tests are listed in docs/performance.md, "Test suite").
+# 2026-12-01: 473 tests in 20.3 min (1219 s) with 2 workers on the idle VM, over the ~15 min CI
+# target (the slowest tests are listed in docs/performance.md, "Test suite").
 # worksteal evens out the long tests.
 .venv/bin/python -m pytest -q -n "${MPMJAX_TEST_WORKERS:-auto}" --dist worksteal "$@"
 rc=$?
