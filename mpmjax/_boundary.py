@@ -2,7 +2,8 @@
 
 * walls (``_scene.Wall``): planes whose normal points into the fluid; a node with
   (x - point).normal <= 1e-6 h takes the wall's condition (``_wall_masks``, ``apply_wall``:
-  ``noslip``, ``slip`` or ``symmetry``).  The box faces of those kinds and the extra planes
+  ``noslip``, ``slip`` or ``symmetry``; a noslip box face with a slip length takes the Navier
+  partial-slip law, ``navier_slip``).  The box faces of those kinds and the extra planes
   are walls; periodic faces wrap the stencil index instead (``_transfer._Stencil``) and open
   faces have no condition.
 * terrain (``_scene.Terrain``): a height map z_b; nodes with z <= z_b take ``noslip``,
@@ -58,6 +59,35 @@ def apply_wall(v, nrm, kind):
     if kind == "symmetry":
         return v - vn[:, None] * n
     raise ValueError(kind)
+
+
+def navier_slip_neighbours(scene: Scene, mask: np.ndarray, nrm) -> np.ndarray:
+    """Static (n_nodes,) index: for each node in the wall mask, the node one cell inside the
+    fluid along the wall's normal ``nrm`` (the first interior node on the same grid line; the
+    wall's face is on a node plane); every other node maps to itself.  Box faces only (``nrm``
+    along an axis)."""
+    a = int(np.argmax(np.abs(nrm)))
+    idx = np.arange(scene.n_nodes).reshape(scene.grid_shape)
+    xn = scene.node_positions()
+    phi = np.round(((xn[:, a] - xn[:, a].min()) / scene.h)).astype(int).reshape(scene.grid_shape)
+    out = idx.copy()
+    m = mask.reshape(scene.grid_shape)
+    sign = 1 if nrm[a] > 0 else -1
+    # the wall's node plane and the one inside it
+    wall_plane = np.max(phi[m]) if sign > 0 else np.min(phi[m])
+    inner = np.take(idx, [wall_plane + sign], axis=a)  # shape with axis a of length 1
+    out = np.where(m, np.broadcast_to(inner, idx.shape), idx)
+    return out.ravel()
+
+
+def navier_slip(v, nrm, v_inner, b_over_h: float):
+    """Wall-node velocity under the Navier partial-slip law u_t = b du_t/dn with the gradient
+    over the first cell, (u_1 - u_t) / h: u_t = u_1 b / (b + h), u_1 the tangential velocity of
+    the first interior node (``v_inner``), and no normal velocity (no penetration, no
+    separation, as ``noslip``).  b = 0 is no slip; b -> inf free slip.  ``b_over_h`` = b / h."""
+    n = jnp.asarray(nrm, v.dtype)[None, :]
+    vt = v_inner - (v_inner @ n[0])[:, None] * n
+    return (b_over_h / (1.0 + b_over_h)) * vt
 
 
 def terrain_velocity(v, nrm, terrain):

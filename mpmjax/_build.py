@@ -383,7 +383,8 @@ def build(cfg: dict) -> Setup:
                 nrm[a] = 1.0 if side == 0 else -1.0
                 pt = [0.0] * dim
                 pt[a] = float(lo[a] if side == 0 else hi[a])
-                walls.append(Wall(tuple(pt), tuple(nrm), kind))
+                b = float(cfg["boundary.slip_length_m"]) if kind == "noslip" else 0.0
+                walls.append(Wall(tuple(pt), tuple(nrm), kind, b))
     for p in cfg["boundary.planes"]:
         walls.append(Wall(tuple(map(float, p["point_m"])), tuple(map(float, p["normal"])), p.get("type", "noslip")))
     gate = None

@@ -29,12 +29,14 @@ class Wall:
 
     kind: ``noslip`` (v = 0), ``slip`` (no penetration: the normal velocity into the
     wall is removed, separation allowed) or ``symmetry`` (normal velocity zero).
-    The normal points into the fluid.
+    The normal points into the fluid.  slip_length [m]: a ``noslip`` box face with
+    slip_length b > 0 takes the Navier partial-slip law instead (``_boundary.navier_slip``).
     """
 
     point: tuple[float, ...]
     normal: tuple[float, ...]
     kind: str
+    slip_length: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)

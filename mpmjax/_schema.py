@@ -61,6 +61,17 @@ _HEAD: dict[str, Key] = {
     "boundary.y_hi": Key(str, "slip", "-", "Condition on the y-max face.", choices=FACE_KINDS),
     "boundary.z_lo": Key(str, "noslip", "-", "Condition on the z-min face (3D).", choices=FACE_KINDS, only_3d=True),
     "boundary.z_hi": Key(str, "slip", "-", "Condition on the z-max face (3D).", choices=FACE_KINDS, only_3d=True),
+    "boundary.slip_length_m": Key(
+        float,
+        0.0,
+        "m",
+        "Navier slip length b on the noslip faces of the domain box (not on extra planes or terrain): "
+        "0 is no slip (v = 0 at the wall); b > 0 lets the material slide along the wall at u_wall = b du/dn, "
+        "the gradient taken over the first cell (docs/validation.md, 'Depth resolution', has what it "
+        "measured; experimental: it changes the bed's physics, no-slip is the thesis's condition).",
+        lo=0.0,
+        hi=1e3,
+    ),
     "boundary.planes": Key(
         "table-list",
         [],

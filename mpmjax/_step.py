@@ -11,8 +11,8 @@ composes them:
    force f_i = -sum_p V_p sigma_p grad w_ip; one scatter-add with all channels stacked;
 3. grid update (here): v = p/m + dt (f/m + g) on the nodes that hold mass
    (``EMPTY_NODE_FRACTION``), then the boundary conditions of ``_boundary``: walls as planes
-   (``apply_wall``), terrain (``terrain_velocity``), the pipe inlet's driven nodes
-   (``pipe_nodes``); periodic axes wrap the stencil index (``_transfer._Stencil``);
+   (``apply_wall``; a noslip box face with ``boundary.slip_length_m`` > 0: ``navier_slip``),
+   terrain (``terrain_velocity``), the pipe inlet's driven nodes (``pipe_nodes``); periodic axes wrap the stencil index (``_transfer._Stencil``);
 4. G2P (``_transfer.make_g2p``): velocity (APIC or FLIP/PIC blend), affine matrix, velocity
    gradient; then here the position, particles pushed back out of walls and terrain (never
    silently clamped elsewhere) and wrapped on periodic axes;
@@ -37,7 +37,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _shapes
-from ._boundary import _wall_masks, apply_wall, make_release, node_fill, pipe_nodes, terrain_velocity
+from ._boundary import (
+    _wall_masks,
+    apply_wall,
+    make_release,
+    navier_slip,
+    navier_slip_neighbours,
+    node_fill,
+    pipe_nodes,
+    terrain_velocity,
+)
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._scene import Params, Scene, State
 from ._shard import AXIS, shard_particles
@@ -59,6 +68,8 @@ def make_step(scene: Scene, axis: str | None = None):
         return shard_particles(make_step(scene, AXIS), scene.devices)
     dim, dt = scene.dim, scene.dt
     walls = _wall_masks(scene)
+    # Navier slip (boundary.slip_length_m): per wall, the index of each wall node's first interior node
+    slip_nb = {i: navier_slip_neighbours(scene, m, nrm) for i, (m, nrm, w) in enumerate(walls) if w.slip_length > 0.0}
     p2g = make_p2g(scene, axis)
     g2p = make_g2p(scene)
     rheo = scene.rheology
@@ -102,8 +113,12 @@ def make_step(scene: Scene, axis: str | None = None):
         v_old = mom * inv_m[:, None]
         g = jnp.asarray(params.gravity, dtp)[None, :]
         v_new = jnp.where(has[:, None], v_old + dt * (force * inv_m[:, None] + g), 0.0)
-        for mask, nrm, wall in walls:
-            v_new = jnp.where(jnp.asarray(mask)[:, None], apply_wall(v_new, nrm, wall.kind), v_new)
+        for i, (mask, nrm, wall) in enumerate(walls):
+            if i in slip_nb:  # the first interior nodes as the walls before this one left them
+                v_wall = navier_slip(v_new, nrm, v_new[slip_nb[i]], wall.slip_length / scene.h)
+            else:
+                v_wall = apply_wall(v_new, nrm, wall.kind)
+            v_new = jnp.where(jnp.asarray(mask)[:, None], v_wall, v_new)
         if terrain is not None:
             v_new = jnp.where(jnp.asarray(t_mask)[:, None], terrain_velocity(v_new, t_nrm, terrain), v_new)
         if pipe is not None:
