@@ -800,7 +800,10 @@ def _finish(out, setup, cfg, state, acc, advance, compile_s, base_summary, anima
             f"the final deposit is {summary['deposit_cells_across']:.1f} cells thick at its thickest point "
             f"(deposit_cells_across; {thick:.3g} m at domain.cell_size_m = {sc.h:g} m); the convergence benchmark "
             f"needs >= {_metrics.DEPOSIT_CELLS_NEEDED} for a runout within about 5 % (docs/validation.md, 'Convergence "
-            f"benchmark'): set domain.cell_size_m <= {thick / _metrics.DEPOSIT_CELLS_NEEDED:.3g} m"
+            f"benchmark'): set domain.cell_size_m <= {thick / _metrics.DEPOSIT_CELLS_NEEDED:.3g} m, the cheapest remedy "
+            "that converges (docs/validation.md, 'Depth resolution': more particles per cell do not pay; a domain.hi_m "
+            "cropped to where the material goes saves the grid's few per cent; boundary.slip_length_m = "
+            f"{0.25 * sc.h:.3g} m (h/4) cut the shortfall by 15-30 % there at no cost, but changes the bed's physics)"
         )
         summary["warnings"] = list(summary.get("warnings", [])) + [deposit_warning]
     res = read_result(out / "result.h5")

@@ -578,9 +578,9 @@ def plan_view_summary(result, path=None) -> dict:
 # --- runout -----------------------------------------------------------------------------------
 
 
-# cells across the final deposit's thickest point below which summary.json warns: the Bingham slump
-# of the convergence benchmark (docs/validation.md), 4 cells across its deposit (8 over its initial
-# height): front 5.3 % short with the defaults (1.8 % with quadratic), 2.4 % at 8 cells across
+# cells across the final deposit's thickest point below which summary.json warns (docs/validation.md,
+# "Depth resolution", GIMP ppc 3): the Bingham slump 4.5 % short at 3.9 cells across, 0.5 % at 7.5; the
+# lab dam break 8.3 % short at 2.4 cells, 1.2 % at 4.7 and 0.1 % at 7.0
 DEPOSIT_CELLS_NEEDED = 4
 
 

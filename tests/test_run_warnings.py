@@ -75,4 +75,6 @@ def test_run_prints_and_records_the_warnings(tmp_path, capsys):
     # the final deposit (0.2 m at 8 cm: 2.5 cells) joins the list, as printed at the end
     assert doc["deposit_cells_across"] < 4
     assert doc["warnings"][-1].startswith("the final deposit is") and "deposit_cells_across" in doc["warnings"][-1]
+    # it names the cheapest measured remedy, uniform refinement (docs/validation.md "Depth resolution")
+    assert "set domain.cell_size_m <=" in doc["warnings"][-1] and "Depth resolution" in doc["warnings"][-1]
     assert f"warning: {doc['warnings'][-1]}" in err

@@ -57,20 +57,11 @@ def run(case: str, h: float, ppc: int, extra: dict, label: str) -> dict:
         s = build(cv._config(case, ov))
         rec["grid_nodes"] = int(np.prod(s.scene.grid_shape))
         prof = np.asarray(rec["profile_m"])
-        xs = np.arange(len(prof)) * cv.PROFILE_STATION
         # thickest point of the final deposit in cells (bandwidth h, as summary.json)
         fin = np.load(npz)
         gauge = RunoutGauge.of(s.scene, s.info)
         rec["deposit_cells_across"] = gauge.max_thickness(fin["x"], fin["vol0"], fin["active"]) / h
-        if case == "slump":
-            cv.slump_errors(rec, h)
-        else:
-            rec["error_pct"] = 100.0 * (rec["runout_m"] - LAB_REFERENCE_M) / LAB_REFERENCE_M
-            ref = _finest_lab_profile()
-            n = min(len(ref), len(prof))
-            on = xs[:n] <= LAB_REFERENCE_M  # the deposit's extent
-            rec["profile_rms_vs_finest_m"] = float(np.sqrt(np.mean((prof[:n][on] - ref[:n][on]) ** 2)))
-            rec["profile_rms_vs_finest_pct"] = 100.0 * rec["profile_rms_vs_finest_m"] / float(ref.max())
+        _errors(case, rec, prof, h)
     rec.pop("profile_m", None)
     with JSONL.open("a") as f:
         f.write(json.dumps(rec) + "\n")
@@ -78,7 +69,57 @@ def run(case: str, h: float, ppc: int, extra: dict, label: str) -> dict:
     return rec
 
 
-def split(hs=(0.01, 0.005), lengths=(2.0, 1.5, 4.0), t_end=0.1, rounds=3) -> list:
+def existing(npz_dir: Path, series=("ppc=3", "default", "ppc=1")) -> None:
+    """Records of the convergence sweep's runs (docs/bench/converge.json: GIMP at ppc 3, 2, 1, as
+    measured there) with the same figures as ``run``; the thickness in cells from the final
+    positions that sweep kept (``npz_dir`` = its OUT/bench/converge)."""
+    doc = json.loads((HERE / "converge.json").read_text())
+    labels = {"ppc=3": "uniform", "default": "ppc 2", "ppc=1": "ppc 1"}
+    have = [json.loads(x) for x in JSONL.read_text().splitlines() if x.strip()] if JSONL.exists() else []
+    done = {(r.get("case"), r.get("label"), r.get("h_m")) for r in have if r.get("source")}
+    for case in ("lab", "slump"):
+        for r in doc["cases"][case]["rows"]:
+            if r["series"] not in series or r["status"] != "ok":
+                continue
+            h = r["overrides"]["domain.cell_size_m"]
+            if (case, labels[r["series"]], h) in done:  # a rerun only adds what is missing
+                continue
+            ppc = {"ppc=3": 3, "default": 2, "ppc=1": 1}[r["series"]]
+            slug = f"{r['series']}_h{h:g}".replace("=", "").replace(".", "p")
+            fin = np.load(npz_dir / case / f"{slug}.npz")
+            ov = {**cv.CASES[case][1], "domain.cell_size_m": h, "numerics.ppc": ppc}
+            s = build(cv._config(case, ov))
+            gauge = RunoutGauge.of(s.scene, s.info)
+            rec = {k: r[k] for k in ("status", "n_particles", "n_steps", "cpu_s", "runout_m", "runout_farthest_m") if k in r}
+            rec.update(label=labels[r["series"]], case=case, h_m=h, ppc=ppc, overrides={}, source="docs/bench/converge.json")
+            rec["grid_nodes"] = int(np.prod(s.scene.grid_shape))
+            rec["deposit_cells_across"] = gauge.max_thickness(fin["x"], fin["vol0"], fin["active"]) / h
+            _errors(case, rec, np.asarray(r["profile_m"]), h)
+            with JSONL.open("a") as f:
+                f.write(json.dumps(rec) + "\n")
+            print(json.dumps(rec), flush=True)
+
+
+def _errors(case: str, rec: dict, prof, h: float) -> None:
+    """The case's errors (added to ``rec``): slump against its exact profile, lab against the
+    reference runout and the finest run's profile."""
+    if case == "slump":
+        # the exact profile's stations span the full 1 m domain: a cropped run's profile is 0 beyond its box
+        n_exact = int(round(1.0 / cv.PROFILE_STATION)) + 1
+        rec["profile_m"] = np.pad(prof, (0, max(0, n_exact - len(prof)))).tolist()
+        cv.slump_errors(rec, h)
+        rec.pop("profile_m")
+        return
+    xs = np.arange(len(prof)) * cv.PROFILE_STATION
+    rec["error_pct"] = 100.0 * (rec["runout_m"] - LAB_REFERENCE_M) / LAB_REFERENCE_M
+    ref = _finest_lab_profile()
+    n = min(len(ref), len(prof))
+    on = xs[:n] <= LAB_REFERENCE_M  # the deposit's extent
+    rec["profile_rms_vs_finest_m"] = float(np.sqrt(np.mean((prof[:n][on] - ref[:n][on]) ** 2)))
+    rec["profile_rms_vs_finest_pct"] = 100.0 * rec["profile_rms_vs_finest_m"] / float(ref.max())
+
+
+def split(hs=(0.01, 0.005), lengths=(2.0, 1.5, 8.0, 16.0), t_end=0.2, rounds=3) -> list:
     """Step CPU of the lab at ppc 3 for domain lengths ``lengths`` [m] (same particles)."""
     out = []
     for h in hs:
@@ -127,8 +168,29 @@ def split(hs=(0.01, 0.005), lengths=(2.0, 1.5, 4.0), t_end=0.1, rounds=3) -> lis
 def table() -> str:
     rows = [json.loads(s) for s in JSONL.read_text().splitlines() if s.strip()]
     out = []
+    # the split: per h, the longest loops measured (a first probe of 0.1 s per loop was noisier)
+    spl = [r for r in rows if r.get("kind") == "split"]
+    longest = {r["h_m"]: max(q["n_steps"] for q in spl if q["h_m"] == r["h_m"]) for r in spl}
+    sp = {(r["h_m"], r["length_m"]): r for r in spl if r["n_steps"] == longest[r["h_m"]]}
+    if sp:
+        out.append("| h (m) | domain length (m) | particles | grid nodes | step CPU (µs) | fit: per node (µs) | fit: per particle (µs) | grid share |")
+        out.append("|---|---|---|---|---|---|---|---|")
+        for (h, L), r in sorted(sp.items(), key=lambda kv: (-kv[0][0], kv[0][1])):
+            out.append(
+                f"| {h:g} | {L:g} | {r['n_particles']} | {r['grid_nodes']} | {r['step_cpu_us']:.0f} | {r['us_per_node']:.4f} "
+                f"| {r['particle_part_us'] / r['n_particles']:.3f} | {100 * r['grid_share']:.1f} % |"
+            )
+        out.append("")
     for case in ("lab", "slump"):
-        sel = [r for r in rows if r.get("case") == case]
+        order = ["uniform", "cropped", "ppc 4", "navier b=0.5h", "navier b=0.25h", "navier b=1.0h", "ppc 2", "ppc 1"]
+        rank = {lab: i for i, lab in enumerate(order)}
+        last = {}  # a repeated run: the last one
+        for r in rows:
+            if r.get("case") == case and r.get("status") == "ok":
+                lab = "uniform" if r["label"] == "navier b=0h" else r["label"]  # slip length 0 is the default
+                last[(lab, r["h_m"], r["ppc"])] = dict(r, label=lab)
+        sel = sorted(last.values(), key=lambda r: (rank.get(r["label"].split(" 0.")[0].split(" 1.")[0], 99), -r["h_m"]))
+        sel = [dict(r, label=r["label"] + (" (sweep)" if r.get("source") else "")) for r in sel]
         if not sel:
             continue
         if case == "lab":
@@ -163,6 +225,8 @@ if __name__ == "__main__":
         extra = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
         label = sys.argv[6] if len(sys.argv) > 6 else "uniform"
         run(case, h, ppc, extra, label)
+    elif cmd == "existing":
+        existing(Path(sys.argv[2]))
     elif cmd == "table":
         print(table())
     else:
