@@ -120,8 +120,9 @@ class BatchLayout:
     multiple of the device count by repeating its last lane and split along a one-axis mesh
     (``BATCH_AXIS``).  ``put`` makes the (global) input arrays from host arrays every process
     holds alike, ``replicate`` the arrays all lanes share; ``gather`` returns a computation's
-    outputs as numpy arrays on every process, padding dropped.  ``min_lanes``: below this many lanes the batch is not split (each
-    process computes all of it: cheaper than padding one lane to one per device)."""
+    outputs as numpy arrays on every process, padding dropped.  ``min_lanes``: below this many
+    lanes the batch is not split (each process computes all of it: cheaper than padding one lane
+    to one per device)."""
 
     def __init__(self, n: int, min_lanes: int = 1):
         self.n = int(n)

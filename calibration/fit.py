@@ -6,6 +6,11 @@
 starts cost one compiled update and run as a batch.  The host-side loop (one jitted,
 vmapped update per iteration) shows progress and stops early.
 
+With several devices (host devices, GPUs, or the devices of every process of a
+``jax.distributed`` job) two or more starts are split over them
+(``calibration.distributed.BatchLayout``); the host loop works on the gathered losses, the same
+on every process, so every process takes the same decisions.
+
 Starts: start 0 is the specified initial guess; start k > 0 multiplies each free
 parameter by exp(s N(0, 1)) (s = ``start_spread``, default ln 2: a factor of 2 at one
 standard deviation), clipped inside its bounds.

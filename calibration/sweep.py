@@ -140,11 +140,13 @@ def _case(mat, params, state0, x_prof, *, sc, axis, origin, spacing):
 
 @partial(jax.jit, static_argnames=("sc", "axis", "origin", "spacing"))
 def _batch(mats, params, state0, x_prof, *, sc, axis, origin, spacing):
-    """Every case of a batch: ``mats`` holds the lanes; the scene's arrays are shared."""
+    """Every case of a batch: ``mats`` holds the lanes; the scene's arrays are shared.  Compiled
+    once per scene, runout gauge, batch size and layout for the life of the process."""
     return jax.vmap(lambda m: _case(m, params, state0, x_prof, sc=sc, axis=axis, origin=origin, spacing=spacing))(mats)
 
 
-def sweep(    scene, vary: dict, *, overrides=None, chunk: int | None = None, profile_x_m=None, progress=True, shard=None
+def sweep(
+    scene, vary: dict, *, overrides=None, chunk: int | None = None, profile_x_m=None, progress=True, shard=None
 ):
     """Run every combination of ``vary`` on ``scene`` (built-in name or TOML path) with the
     scene ``overrides``.  Returns a dict with ``cases`` (list of name -> value), per-case
@@ -156,8 +158,9 @@ def sweep(    scene, vary: dict, *, overrides=None, chunk: int | None = None, pr
     alike; the batch is split over the devices of all of them and every process gets the whole
     result.  ``shard = (I, N)``: only the I-th of N contiguous shares of the cases
     (``calibration.distributed.shard_range``; ``cases`` and ``case_index`` say which), with the
-    time step of the whole grid, for ``write_part`` and ``merge_parts``.  Raises ``SceneError`` (from ``mpmjax``) for invalid
-    values, ``ValueError`` for names that are not material parameters of the scene."""
+    time step of the whole grid, for ``write_part`` and ``merge_parts``.  Raises ``SceneError``
+    (from ``mpmjax``) for invalid values, ``ValueError`` for names that are not material
+    parameters of the scene."""
     overrides = list(overrides or [])
     cfg = mpmjax.load_scene(scene, overrides)
     setup = mpmjax.build(cfg)
@@ -198,9 +201,9 @@ def sweep(    scene, vary: dict, *, overrides=None, chunk: int | None = None, pr
     layout = BatchLayout(ch)
     # the scene's arrays as arguments (replicated over the batch mesh), not closed over: one
     # compilation serves every sweep of the same scene and batch size in the process
-    shared = layout.replicate((params, state0, np.asarray(x_prof, np.dtype(sc.dtype))))
-    mat0 = params.material
     npdt = np.dtype(sc.dtype)
+    shared = layout.replicate((params, state0, np.asarray(x_prof, npdt)))
+    mat0 = params.material
     cols = {k: np.asarray([c[k] for c in cases_run], npdt) for k in vary}
     base = {f: np.asarray(getattr(mat0, f)) for f in mat0._fields}
     say = progress and is_writer()
@@ -240,7 +243,9 @@ def sweep(    scene, vary: dict, *, overrides=None, chunk: int | None = None, pr
         "times_s": times,
         "runout_m": fronts,
         "final_runout_m": fronts[:, -1],
-        "runout_definition": "free-surface front (docs/output.md 'Runout')" if _on_profile(sc, axis) else "farthest particle",
+        "runout_definition": (
+            "free-surface front (docs/output.md 'Runout')" if _on_profile(sc, axis) else "farthest particle"
+        ),
         "runout_farthest_particle_m": far,
         "final_runout_farthest_particle_m": far[:, -1],
         "kinetic_energy_J": ke,
@@ -355,7 +360,8 @@ def write_part(res: dict, out) -> Path:
     path = out / part_name(res["shard"])
     shared = {k: v for k, v in res.items() if k not in PER_CASE and k != "cases"}
     arrays = {k: np.asarray(res[k]) for k in PER_CASE}
-    arrays["cases"] = np.asarray([[c[k] for k in res["vary"]] for c in res["cases"]], float).reshape(-1, len(res["vary"]))
+    names = list(res["vary"])
+    arrays["cases"] = np.asarray([[c[k] for k in names] for c in res["cases"]], float).reshape(-1, len(names))
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     with open(tmp, "wb") as f:
         np.savez(f, shared=np.asarray(json.dumps(_jsonable(shared))), **arrays)

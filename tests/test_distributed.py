@@ -33,7 +33,8 @@ def _free_port() -> int:
 def _sweep_cli(out, *extra):
     args = [a for k, v in VARY.items() for a in ("--vary", f"{k}={','.join(map(str, v))}")]
     args += [a for o in SMALL for a in ("--set", o)]
-    return [sys.executable, "-m", "mpmjax.cli", "sweep", TWIN, *args, "--chunk", "2", "--quiet", "--out", str(out), *extra]
+    cli = [sys.executable, "-m", "mpmjax.cli", "sweep", TWIN]
+    return cli + args + ["--chunk", "2", "--quiet", "--out", str(out), *extra]
 
 
 def _same(a, b):
@@ -131,7 +132,10 @@ def test_sweep_merge_cli_joins_parts_and_names_missing_ones(tmp_path, capsys):
         (["--coordinator", "node1"], "--coordinator = 'node1' is invalid; allowed: HOST:PORT"),
         (["--coordinator", "node1:70000", "--num-processes", "2", "--process-id", "0"], "TCP port 1 .. 65535"),
         (["--coordinator", "h:1234", "--num-processes", "0", "--process-id", "0"], "--num-processes = 0 is invalid"),
-        (["--coordinator", "h:1234", "--num-processes", "2", "--process-id", "2"], "--process-id = 2 is invalid; allowed range: 0 .. 1"),
+        (
+            ["--coordinator", "h:1234", "--num-processes", "2", "--process-id", "2"],
+            "--process-id = 2 is invalid; allowed range: 0 .. 1",
+        ),
         (["--coordinator", "h:1234"], "--num-processes, --process-id missing"),
         (["--shard", "2/2"], "--shard = '2/2' is invalid; allowed: I/N with N >= 1 jobs and 0 <= I <= N - 1"),
         (["--shard", "0/2", "--coordinator", "h:1234", "--num-processes", "2", "--process-id", "0"], "--shard and"),
