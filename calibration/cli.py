@@ -12,11 +12,13 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
 import mpmjax
 
 from .data import DataError, load_profiles, load_rest_times, load_runout_series, load_shear_tests
+from .distributed import DistributedError, check_join_options, is_writer, join, parse_shard
 from .experiments import (
     FlowCurveExperiment,
     ProfileExperiment,
@@ -28,7 +30,7 @@ from .experiments import (
 from .multilevel import check_levels, experiments_at_cell_size, fit_multilevel
 from .params import UNITS, ParameterSet
 from .profile import PROFILE_DEFINITION, check_profile_options, plot_profiles, profile_likelihood
-from .sweep import FIELD_KEYS, parse_vary, sweep, write_sweep
+from .sweep import FIELD_KEYS, merge_parts, parse_vary, sweep, write_part, write_sweep
 from .uncertainty import REL_STD_WARN, identifiability, identifiability_lines
 
 USAGE_ERROR = 2
@@ -60,6 +62,30 @@ def _transform(text):
     if text not in TRANSFORM_CHOICES:
         raise ValueError(f"allowed: {', '.join(TRANSFORM_CHOICES)}")
     return text
+
+
+def add_distributed_arguments(p: argparse.ArgumentParser):
+    """``--coordinator``, ``--num-processes``, ``--process-id``, ``--distributed``: the same on
+    ``sweep`` and ``calibrate`` (``calibration.distributed``; docs/performance.md "Beyond one machine")."""
+    g = p.add_argument_group(
+        "beyond one machine (jax.distributed: the batch split over the devices of all processes; "
+        "process 0 writes --out)"
+    )
+    g.add_argument(
+        "--coordinator", metavar="HOST:PORT", help="address of process 0 and a free TCP port, e.g. node001:12345"
+    )
+    g.add_argument("--num-processes", type=int, metavar="N", help="number of processes of the job (>= 1)")
+    g.add_argument("--process-id", type=int, metavar="I", help="this process's index, 0 .. N-1")
+    g.add_argument(
+        "--distributed",
+        action="store_true",
+        help="join a jax.distributed job, detecting the options not given from the cluster (Slurm srun, Open MPI)",
+    )
+
+
+def _join_options(args):
+    """The validated ``jax.distributed`` options of ``args`` (None for a single-process run)."""
+    return check_join_options(args.coordinator, args.num_processes, args.process_id, args.distributed)
 
 
 def add_calibrate_arguments(p: argparse.ArgumentParser):
@@ -172,6 +198,7 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     )
     p.add_argument("--out", default="calibration-out", help="output folder (default calibration-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_distributed_arguments(p)
 
 
 # experiment kinds of --sigma / --weight, and the unit of each kind's sigma
@@ -245,7 +272,9 @@ def _scene_overrides(args, times_s, init):
 def calibrate(args) -> dict:
     """Run a calibration from parsed arguments; returns the fit.json document."""
     out = Path(args.out)
-    log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
+    join(_join_options(args))  # before any JAX computation; nothing for a single-process run
+    writer = is_writer()  # only process 0 writes --out and prints progress
+    log = (lambda *a: None) if args.quiet or not writer else (lambda *a: print(*a, file=sys.stderr))
     profiles = load_profiles(args.data)
     sigmas = _per_kind(args.sigma, "--sigma")
     weights = _per_kind(args.weight, "--weight")
@@ -366,7 +395,8 @@ def calibrate(args) -> dict:
     def make_experiments(h):
         return make(setup) if h == levels[0] else build_at(h)
 
-    out.mkdir(parents=True, exist_ok=True)
+    if writer:
+        out.mkdir(parents=True, exist_ok=True)
 
     def on_level(i, h, exps):
         sc = exps[0].setup.scene
@@ -378,6 +408,8 @@ def calibrate(args) -> dict:
         )
 
     def progress(level, h, it, max_iter, losses, best, running):
+        if not writer:
+            return
         if not args.quiet:
             vals = ", ".join(f"{k}={v:.4g}" for k, v in best.items())
             lv = f" level {level + 1}/{len(levels)}" if len(levels) > 1 else ""
@@ -496,6 +528,8 @@ def calibrate(args) -> dict:
         "final_losses": [float(v) for v in ml.levels[0].result.final_losses],
         "best_start": ml.levels[0].result.best_start,
         "compile_s": res.compile_s,
+        "n_processes": jax.process_count(),
+        "n_devices": jax.device_count(),
         "scene": cfg["name"],
         "scene_overrides": overrides
         + [finest]
@@ -513,6 +547,9 @@ def calibrate(args) -> dict:
             "definition": PROFILE_DEFINITION,
             **{k: p.as_dict(UNITS.get(k, "SI")) for k, p in profiles_lr.items()},
         }
+    if not writer:
+        return doc
+    if profiles_lr is not None:
         plot_profiles(
             profiles_lr, out / "profile_likelihood.png", {k: UNITS.get(k, "SI") for k in pset.free},
             {k: pset.specs[k].transform for k in pset.free},
@@ -643,29 +680,72 @@ def add_sweep_arguments(p: argparse.ArgumentParser):
     p.add_argument("--chunk", type=int, help="cases per vmap batch (default: as many as fit in a quarter of memory)")
     p.add_argument("--out", default="sweep-out", help="output folder (default sweep-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_distributed_arguments(p)
+    p.add_argument(
+        "--shard",
+        metavar="I/N",
+        help="independent job I of N (e.g. a job array): run the I-th of N shares of the cases and write "
+        "OUT/part-I-of-N.npz; `mpmjax sweep-merge OUT` joins the parts",
+    )
+
+
+def add_sweep_merge_arguments(p: argparse.ArgumentParser):
+    p.add_argument("parts", help="folder of the part-I-of-N.npz files of `mpmjax sweep --shard I/N`")
+    p.add_argument("--out", help="output folder of sweep.csv, sweep.json and the plots (default: the parts' folder)")
+    p.add_argument("--quiet", action="store_true", help="no summary output")
+
+
+def _print_sweep(res, paths, how):
+    names = list(res["vary"])
+    print(
+        " ".join(f"{k:>10s}" for k in names) + f" {'runout [m]':>11s} {'rest [s]':>9s} {'lost':>5s}",
+        file=sys.stderr,
+    )
+    for i, c in enumerate(res["cases"]):
+        print(
+            " ".join(f"{c[k]:10.4g}" for k in names)
+            + f" {res['final_runout_m'][i]:11.4f} {res['time_to_rest_s'][i]:9.3g} {int(res['n_lost'][i]):5d}",
+            file=sys.stderr,
+        )
+    print(f"sweep: {len(res['cases'])} cases {how}; wrote {', '.join(str(p) for p in paths)}", file=sys.stderr)
 
 
 def run_sweep(args) -> dict:
+    options = _join_options(args)
+    shard = parse_shard(args.shard) if args.shard is not None else None
+    if shard is not None and options is not None:
+        raise DistributedError(
+            "--shard and --coordinator / --num-processes / --process-id / --distributed both given; allowed: one "
+            "(--shard: independent jobs merged by `mpmjax sweep-merge`; the others: one jax.distributed job)"
+        )
     vary = parse_vary(args.vary)
-    res = sweep(args.scene, vary, overrides=args.set, chunk=args.chunk, progress=not args.quiet)
+    join(options)  # before any JAX computation; nothing for a single-process run
+    writer = is_writer()
+    res = sweep(args.scene, vary, overrides=args.set, chunk=args.chunk, progress=not args.quiet, shard=shard)
+    how = (
+        f"in batches of {res['chunk']} on {res['n_devices']} device(s) of {res['n_processes']} process(es), "
+        f"{res['wall_s']:.1f} s"
+    )
+    if shard is not None:
+        path = write_part(res, args.out)
+        if not args.quiet:
+            ci = res["case_index"]
+            share = f"cases {ci[0]} .. {ci[-1]}" if len(ci) else "no case"
+            _print_sweep(res, [path], f"(job {shard[0]} of {shard[1]}: {share} of {res['n_cases']}) {how}")
+        return res
+    if not writer:  # the other processes of a distributed job leave --out to process 0
+        return res
     paths = write_sweep(res, args.out)
     if not args.quiet:
-        names = list(vary)
-        print(
-            " ".join(f"{k:>10s}" for k in names) + f" {'runout [m]':>11s} {'rest [s]':>9s} {'lost':>5s}",
-            file=sys.stderr,
-        )
-        for i, c in enumerate(res["cases"]):
-            print(
-                " ".join(f"{c[k]:10.4g}" for k in names)
-                + f" {res['final_runout_m'][i]:11.4f} {res['time_to_rest_s'][i]:9.3g} {int(res['n_lost'][i]):5d}",
-                file=sys.stderr,
-            )
-        print(
-            f"sweep: {len(res['cases'])} cases in batches of {res['chunk']} on {res['n_devices']} device(s), "
-            f"{res['wall_s']:.1f} s; wrote {', '.join(str(p) for p in paths)}",
-            file=sys.stderr,
-        )
+        _print_sweep(res, paths, how)
+    return res
+
+
+def run_sweep_merge(args) -> dict:
+    res = merge_parts(args.parts)
+    paths = write_sweep(res, args.out or args.parts)
+    if not args.quiet:
+        _print_sweep(res, paths, f"from {res['parts']} part(s), {res['wall_s']:.1f} s of wall time in all")
     return res
 
 
@@ -687,3 +767,9 @@ def cmd_calibrate(args) -> int:
 
 def cmd_sweep(args) -> int:
     return _guard(run_sweep, args)
+
+
+def cmd_sweep_merge(args) -> int:
+    if args.out is None:
+        args.out = args.parts
+    return _guard(run_sweep_merge, args)

@@ -6,6 +6,11 @@
 starts cost one compiled update and run as a batch.  The host-side loop (one jitted,
 vmapped update per iteration) shows progress and stops early.
 
+With several devices (host devices, GPUs, or the devices of every process of a
+``jax.distributed`` job) two or more starts are split over them
+(``calibration.distributed.BatchLayout``); the host loop works on the gathered losses, the same
+on every process, so every process takes the same decisions.
+
 Starts: start 0 is the specified initial guess; start k > 0 multiplies each free
 parameter by exp(s N(0, 1)) (s = ``start_spread``, default ln 2: a factor of 2 at one
 standard deviation), clipped inside its bounds.
@@ -34,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .distributed import BatchLayout
 from .experiments import joint_loss
 
 __all__ = ["FitResult", "fit", "forward_mode_gradient", "loss_function"]
@@ -224,7 +230,14 @@ def fit(
             ns = jax.tree.map(lambda a, b: jnp.where(ok, a, b), ns, s)
             return nz, ns, loss, g
 
-    vupdate = jax.jit(jax.vmap(update))
+    def masked_update(z, s, keep):
+        # frozen starts keep their z and state (their lanes still compute: vmap has no early exit)
+        z_new, s_new, loss, g = jax.vmap(update)(z, s)
+        z_new = jnp.where(keep[:, None], z_new, z)
+        s_new = jax.tree.map(lambda a, b: jnp.where(keep.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), s_new, s)
+        return z_new, s_new, loss, jnp.linalg.norm(g, axis=-1)
+
+    vupdate = jax.jit(masked_update)
     vloss = jax.jit(jax.vmap(loss_z))
     if z_starts is None:
         z, start_thetas = _starts(pset, int(n_starts), float(start_spread), seed, dtype)
@@ -233,13 +246,19 @@ def fit(
         if z.ndim != 2 or z.shape[1] != len(pset.free):
             raise ValueError(f"z_starts has shape {z.shape}; expected (starts, {len(pset.free)})")
         start_thetas = [{k: float(v) for k, v in pset.theta(zi).items()} for zi in z]
+    n = z.shape[0]
+    # the starts over every device of every process (one lane is not split: padding it to one per
+    # device would only multiply the work); the host loop below sees gathered numpy arrays, alike
+    # on every process of a jax.distributed job, so that all take the same decisions
+    lanes = BatchLayout(n, min_lanes=2)
+    zh = lanes.pad(np.asarray(z))
+    z = lanes.put(zh)
     # the optimiser state as the update returns it: optax's initial state holds weak-typed scalars
     # (L-BFGS: its line-search info) that come back strongly typed, and a change of weak type
     # retraces and recompiles the whole vmapped update on the second iteration (measured: 30 s of
     # a 77 s twin fit on the 2-core VM)
-    state = jax.tree.map(lambda a: a.astype(a.dtype), jax.vmap(opt.init)(z))
+    state = jax.jit(lambda z: jax.tree.map(lambda a: a.astype(a.dtype), jax.vmap(opt.init)(z)))(z)
     cb = _default_callback() if progress is True else (progress or None)
-    n = z.shape[0]
     running = np.ones(n, bool)
     reason = np.array(["max_iter"] * n, dtype=object)
     hist = []
@@ -247,22 +266,20 @@ def fit(
     compile_s = 0.0
     it = 0
     for it in range(1, int(max_iter) + 1):
-        z_new, state_new, loss, g = vupdate(z, state)
-        loss = np.asarray(loss)
+        keep = lanes.put(lanes.pad(running) & (np.arange(lanes.n_padded) < n))
+        z_next, state, loss, gn = vupdate(z, state, keep)
+        loss, gn = lanes.gather((loss, gn))
         if it == 1:
             compile_s = time.perf_counter() - t0
         if not np.all(np.isfinite(loss[running])):
             bad = int(np.flatnonzero(~np.isfinite(loss) & running)[0])
             raise FloatingPointError(
                 f"calibration: the loss is {loss[bad]} at start {bad}, iteration {it}, parameters "
-                f"{ {k: float(v) for k, v in pset.theta(z[bad]).items()} }: the run produced non-finite heights"
+                f"{ {k: float(v) for k, v in pset.theta(zh[bad]).items()} }: the run produced non-finite heights"
             )
-        # frozen starts keep their z (their lanes still compute: vmap has no early exit)
-        keep = jnp.asarray(running)
-        z = jnp.where(keep[:, None], z_new, z)
-        state = jax.tree.map(lambda a, b: jnp.where(keep.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), state_new, state)
+        z = z_next
+        zh = lanes.gather(z)
         hist.append(loss)
-        gn = np.asarray(jnp.linalg.norm(g, axis=-1))
         H = np.asarray(hist)
         for k in np.flatnonzero(running):
             if loss[k] <= atol:
@@ -275,14 +292,14 @@ def fit(
                     running[k], reason[k] = False, "rtol"
         if cb is not None:
             b = int(np.argmin(loss))
-            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(z[b]).items()}, running)
+            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(zh[b]).items()}, running)
         if not running.any():
             break
-    final = np.asarray(vloss(z))
+    final = lanes.gather(vloss(z))
     hist.append(final)
     wall = time.perf_counter() - t0
     best = int(np.nanargmin(final))
-    finals = [{k: float(v) for k, v in pset.theta(z[i]).items()} for i in range(n)]
+    finals = [{k: float(v) for k, v in pset.theta(zh[i]).items()} for i in range(n)]
     return FitResult(
         params=finals[best],
         loss_initial=float(hist[0][0]),

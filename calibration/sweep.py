@@ -4,8 +4,10 @@
 parameter name -> values) on one scene.  Cases are run ``chunk`` at a time as a
 ``jax.vmap`` batch (padded to a whole chunk by repeating the last case, so there is one
 compilation); with several devices the batch axis is sharded across them with
-``jax.sharding`` (a 1-D mesh named ``batch``), so the same code runs on many GPUs or, under
-``jax.distributed``, many hosts.  Each case gives:
+``jax.sharding`` (a 1-D mesh named ``batch``, ``calibration.distributed.BatchLayout``), so the
+same code runs on many GPUs or, under ``jax.distributed``, on the devices of many processes and
+hosts; ``shard=(I, N)`` runs one share of the cases for a job array (``write_part``,
+``merge_parts``; docs/performance.md "Beyond one machine").  Each case gives:
 
 * ``runout_m`` (per saved frame) and ``final_runout_m``: the headline runout of
   ``mpmjax run`` (docs/output.md "Runout") [m]: in 2D the free-surface front
@@ -30,20 +32,31 @@ import itertools
 import json
 import math
 import os
+import re
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 import mpmjax
 
+from .distributed import BatchLayout, is_writer, shard_range
 from .params import SCENE_KEYS
 
-__all__ = ["FIELD_KEYS", "NO_SENSITIVITY_M", "parse_vary", "sweep", "sweep_figures", "write_sweep"]
+__all__ = [
+    "FIELD_KEYS",
+    "NO_SENSITIVITY_M",
+    "merge_parts",
+    "parse_vary",
+    "sweep",
+    "sweep_figures",
+    "write_part",
+    "write_sweep",
+]
 
 # material field -> scene key (SI units in the key's name), from the laws' declarations
 FIELD_KEYS = SCENE_KEYS
@@ -93,13 +106,61 @@ def _default_chunk(scene, n_cases) -> int:
     return int(max(1, min(n_cases, (mem // 4) // per_case)))
 
 
-def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profile_x_m=None, progress=True):
+def _on_profile(sc, axis) -> bool:
+    """Whether the headline runout is the free-surface front (2D, horizontal runout axis)."""
+    return sc.dim == 2 and axis == 0
+
+
+def _case(mat, params, state0, x_prof, *, sc, axis, origin, spacing):
+    """One case of a sweep: material ``mat`` on the scene ``sc`` from ``state0`` -> (front per
+    frame [m], farthest particle per frame [m], kinetic energy per frame [J], lost particles,
+    final height profile on ``x_prof`` [m])."""
+    p = params._replace(material=mat)
+    st = mpmjax.restate(state0, sc, p)
+    final, fr = mpmjax.simulate(sc, st, p)
+    xs = jnp.concatenate([st.x[None], fr.x])
+    vs = jnp.concatenate([st.v[None], fr.v])
+    act = jnp.concatenate([st.active[None], fr.active])
+    far = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
+    far = jnp.where(jnp.any(act, axis=-1), far, 0.0)  # no active material yet: at the origin
+    if _on_profile(sc, axis):
+        fronts = jax.vmap(
+            lambda x, a: mpmjax.free_surface_front(x, st.vol0, a, bandwidth=sc.h, x_lo=sc.lo[0], x_hi=sc.hi[0])
+        )(xs, act)
+        fronts = jnp.where(jnp.any(act, axis=-1), fronts - origin, 0.0)
+    else:
+        fronts = far
+    ke = mpmjax.kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
+    if sc.dim == 2:
+        prof = mpmjax.height_profile(final.x, st.vol0, final.active, x_prof, bandwidth=sc.h)
+    else:
+        prof = jnp.zeros_like(x_prof)
+    return fronts, far, ke, final.n_lost, prof
+
+
+@partial(jax.jit, static_argnames=("sc", "axis", "origin", "spacing"))
+def _batch(mats, params, state0, x_prof, *, sc, axis, origin, spacing):
+    """Every case of a batch: ``mats`` holds the lanes; the scene's arrays are shared.  Compiled
+    once per scene, runout gauge, batch size and layout for the life of the process."""
+    return jax.vmap(lambda m: _case(m, params, state0, x_prof, sc=sc, axis=axis, origin=origin, spacing=spacing))(mats)
+
+
+def sweep(
+    scene, vary: dict, *, overrides=None, chunk: int | None = None, profile_x_m=None, progress=True, shard=None
+):
     """Run every combination of ``vary`` on ``scene`` (built-in name or TOML path) with the
     scene ``overrides``.  Returns a dict with ``cases`` (list of name -> value), per-case
     arrays (``final_runout_m``, ``time_to_rest_s``, ``n_lost``, ``runout_m`` (cases, frames),
     ``kinetic_energy_J``, ``profile_h_m``), ``times_s``, ``profile_x_m``, ``dt_s``, ``chunk``,
-    ``n_devices`` and ``wall_s``.  Raises ``SceneError`` (from ``mpmjax``) for invalid
-    values, ``ValueError`` for names that are not material parameters of the scene."""
+    ``n_devices`` (of all processes), ``n_processes`` and ``wall_s``.
+
+    Under ``jax.distributed`` (``calibration.distributed.join``) every process calls ``sweep``
+    alike; the batch is split over the devices of all of them and every process gets the whole
+    result.  ``shard = (I, N)``: only the I-th of N contiguous shares of the cases
+    (``calibration.distributed.shard_range``; ``cases`` and ``case_index`` say which), with the
+    time step of the whole grid, for ``write_part`` and ``merge_parts``.  Raises ``SceneError``
+    (from ``mpmjax``) for invalid values, ``ValueError`` for names that are not material
+    parameters of the scene."""
     overrides = list(overrides or [])
     cfg = mpmjax.load_scene(scene, overrides)
     setup = mpmjax.build(cfg)
@@ -125,58 +186,37 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
     info = setup.info
     x_prof = np.linspace(sc.lo[0], sc.hi[0], 101) if profile_x_m is None else np.asarray(profile_x_m, float)
     axis, origin, spacing = info["runout_axis"], info["runout_origin_m"], info["particle_spacing_m"]
-    on_profile = sc.dim == 2 and axis == 0  # the free-surface front (2D, horizontal runout axis)
-    dt = jnp.dtype(sc.dtype)
-    xg = jnp.asarray(x_prof, dt)
+    how = dict(sc=sc, axis=axis, origin=float(origin), spacing=float(spacing))
 
-    def one(mat):
-        p = params._replace(material=mat)
-        st = mpmjax.restate(state0, sc, p)
-        final, fr = mpmjax.simulate(sc, st, p)
-        xs = jnp.concatenate([st.x[None], fr.x])
-        vs = jnp.concatenate([st.v[None], fr.v])
-        act = jnp.concatenate([st.active[None], fr.active])
-        far = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
-        far = jnp.where(jnp.any(act, axis=-1), far, 0.0)  # no active material yet: at the origin
-        if on_profile:
-            fronts = jax.vmap(
-                lambda x, a: mpmjax.free_surface_front(x, st.vol0, a, bandwidth=sc.h, x_lo=sc.lo[0], x_hi=sc.hi[0])
-            )(xs, act)
-            fronts = jnp.where(jnp.any(act, axis=-1), fronts - origin, 0.0)
-        else:
-            fronts = far
-        ke = mpmjax.kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
-        prof = mpmjax.height_profile(final.x, st.vol0, final.active, xg, bandwidth=sc.h) if sc.dim == 2 else jnp.zeros_like(xg)
-        return fronts, far, ke, final.n_lost, prof
-
+    n_all = len(cases)
+    share = range(n_all) if shard is None else shard_range(n_all, shard)
+    cases_run = [cases[i] for i in share]
+    n = len(cases_run)
     n_dev = jax.device_count()
-    n = len(cases)
-    ch = _default_chunk(sc, n) if chunk is None else int(chunk)
+    ch = _default_chunk(sc, max(n, 1)) if chunk is None else int(chunk)
     if ch < 1:
         raise ValueError(f"chunk = {chunk}; allowed range: >= 1")
-    ch = min(ch, n)
-    ch = int(math.ceil(ch / n_dev) * n_dev)  # whole batches per device
-    batched = jax.jit(jax.vmap(one))
-    sharding = None
-    if n_dev > 1:
-        sharding = NamedSharding(Mesh(np.array(jax.devices()), ("batch",)), PartitionSpec("batch"))
+    ch = min(ch, max(n, 1))
+    ch = int(math.ceil(ch / n_dev) * n_dev)  # whole batches per device (of every process)
+    layout = BatchLayout(ch)
+    # the scene's arrays as arguments (replicated over the batch mesh), not closed over: one
+    # compilation serves every sweep of the same scene and batch size in the process
+    npdt = np.dtype(sc.dtype)
+    shared = layout.replicate((params, state0, np.asarray(x_prof, npdt)))
     mat0 = params.material
-    cols = {k: np.asarray([c[k] for c in cases], float) for k in vary}
+    cols = {k: np.asarray([c[k] for c in cases_run], npdt) for k in vary}
+    base = {f: np.asarray(getattr(mat0, f)) for f in mat0._fields}
+    say = progress and is_writer()
     results = []
     t0 = time.perf_counter()
     n_chunks = math.ceil(n / ch)
     for b in range(n_chunks):
-        idx = np.arange(b * ch, (b + 1) * ch)
-        idx = np.minimum(idx, n - 1)  # pad with the last case
-        mats = mat0._replace(
-            **{f: jnp.broadcast_to(getattr(mat0, f), (ch,)) for f in mat0._fields},
-        )
-        mats = mats._replace(**{k: jnp.asarray(cols[k][idx], dt) for k in vary})
-        if sharding is not None:
-            mats = jax.device_put(mats, sharding)
-        out = jax.tree.map(np.asarray, batched(mats))
+        idx = np.minimum(np.arange(b * ch, (b + 1) * ch), n - 1)  # pad with the last case
+        lanes = {f: np.broadcast_to(a, (ch,) + a.shape).copy() for f, a in base.items()}
+        lanes.update({k: cols[k][idx] for k in vary})
+        out = layout.gather(_batch(layout.put(mat0._replace(**lanes)), *shared, **how))
         results.append(jax.tree.map(lambda a, m=min(ch, n - b * ch): a[:m], out))
-        if progress:
+        if say:
             el = time.perf_counter() - t0
             sys.stderr.write(
                 f"sweep: batch {b + 1}/{n_chunks} ({min((b + 1) * ch, n)}/{n} cases) elapsed {el:6.1f} s, "
@@ -184,18 +224,28 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
             )
             sys.stderr.flush()
     wall = time.perf_counter() - t0
-    fronts, far, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(5))
     times = np.arange(sc.n_frames + 1) * sc.steps_per_frame * sc.dt
-    rest = np.asarray([mpmjax.time_to_rest(times, k) for k in ke])
+    if results:
+        fronts, far, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(5))
+    else:  # a job of a --shard array with no case of its own
+        nf = len(times)
+        fronts, far, ke = (np.zeros((0, nf)) for _ in range(3))
+        lost, prof = np.zeros(0, int), np.zeros((0, len(x_prof)))
+    rest = np.asarray([mpmjax.time_to_rest(times, k) for k in ke]).reshape(-1)
     return {
         "scene": cfg["name"],
         "overrides": overrides,
         "vary": {k: list(v) for k, v in vary.items()},
-        "cases": cases,
+        "cases": cases_run,
+        "case_index": np.asarray(list(share), int),
+        "n_cases": n_all,
+        "shard": None if shard is None else list(shard),
         "times_s": times,
         "runout_m": fronts,
         "final_runout_m": fronts[:, -1],
-        "runout_definition": "free-surface front (docs/output.md 'Runout')" if on_profile else "farthest particle",
+        "runout_definition": (
+            "free-surface front (docs/output.md 'Runout')" if _on_profile(sc, axis) else "farthest particle"
+        ),
         "runout_farthest_particle_m": far,
         "final_runout_farthest_particle_m": far[:, -1],
         "kinetic_energy_J": ke,
@@ -206,11 +256,27 @@ def sweep(scene, vary: dict, *, overrides=None, chunk: int | None = None, profil
         "dt_s": sc.dt,
         "chunk": ch,
         "n_devices": n_dev,
+        "n_processes": jax.process_count(),
         "n_particles": sc.n_particles,
         "n_steps": sc.n_steps,
         "wall_s": wall,
         "dim": sc.dim,
     }
+
+
+def _jsonable(v):
+    """``v`` with numpy arrays and scalars as lists and numbers, non-finite floats as None."""
+    if isinstance(v, np.ndarray):
+        return [_jsonable(a) for a in v.tolist()] if v.ndim else _jsonable(v.item())
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(a) for a in v]
+    if isinstance(v, dict):
+        return {k: _jsonable(a) for k, a in v.items()}
+    if isinstance(v, (np.floating, np.integer)):
+        return _jsonable(v.item())
+    return v
 
 
 def write_sweep(res: dict, out) -> list[Path]:
@@ -238,20 +304,7 @@ def write_sweep(res: dict, out) -> list[Path]:
         )
     mpmjax.atomic_write_text(out / "sweep.csv", "\n".join(lines) + "\n")
 
-    def js(v):
-        if isinstance(v, np.ndarray):
-            return [js(a) for a in v.tolist()] if v.ndim else js(v.item())
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, list):
-            return [js(a) for a in v]
-        if isinstance(v, dict):
-            return {k: js(a) for k, a in v.items()}
-        if isinstance(v, (np.floating, np.integer)):
-            return js(v.item())
-        return v
-
-    doc = {k: js(v) for k, v in res.items()}
+    doc = {k: _jsonable(v) for k, v in res.items()}
     doc["units"] = {
         "final_runout_m": "m",
         "time_to_rest_s": "s",
@@ -275,6 +328,97 @@ def write_sweep(res: dict, out) -> list[Path]:
             plt.close(fig)
         paths.append(out / name)
     return paths
+
+
+# per-case entries of a sweep result (lanes first), the rest is shared by all cases
+PER_CASE = (
+    "case_index",
+    "runout_m",
+    "final_runout_m",
+    "runout_farthest_particle_m",
+    "final_runout_farthest_particle_m",
+    "kinetic_energy_J",
+    "time_to_rest_s",
+    "n_lost",
+    "profile_h_m",
+)
+# shared entries that every part of one sweep must agree on
+_SAME = ("scene", "overrides", "vary", "n_cases", "dt_s", "times_s", "profile_x_m", "n_particles", "n_steps", "dim")
+
+
+def part_name(shard) -> str:
+    """File name of job I of N's results: ``part-I-of-N.npz``."""
+    return f"part-{shard[0]}-of-{shard[1]}.npz"
+
+
+def write_part(res: dict, out) -> Path:
+    """Write the result of ``sweep(..., shard=(I, N))`` to ``out/part-I-of-N.npz`` (numpy's npz:
+    the per-case arrays, and the rest as JSON) through a temporary file and an atomic rename, so
+    ``merge_parts`` never reads half a part.  Returns the path."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / part_name(res["shard"])
+    shared = {k: v for k, v in res.items() if k not in PER_CASE and k != "cases"}
+    arrays = {k: np.asarray(res[k]) for k in PER_CASE}
+    names = list(res["vary"])
+    arrays["cases"] = np.asarray([[c[k] for k in names] for c in res["cases"]], float).reshape(-1, len(names))
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, shared=np.asarray(json.dumps(_jsonable(shared))), **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return path
+
+
+def merge_parts(folder) -> dict:
+    """The whole sweep from the parts ``folder/part-I-of-N.npz`` of one ``--shard`` job array:
+    the same dict as ``sweep`` without ``shard`` (``wall_s`` is the sum over the parts, ``parts``
+    their number).  Raises ``ValueError`` naming the missing, extra or mismatching parts."""
+    folder = Path(folder)
+    found = {}
+    for p in sorted(folder.glob("part-*-of-*.npz")):
+        m = re.fullmatch(r"part-(\d+)-of-(\d+)\.npz", p.name)
+        if m:
+            found[(int(m.group(1)), int(m.group(2)))] = p
+    if not found:
+        raise ValueError(f"{folder}: no part-I-of-N.npz files (written by mpmjax sweep --shard I/N --out {folder})")
+    counts = sorted({k for _, k in found})
+    if len(counts) > 1:
+        raise ValueError(f"{folder}: parts of job arrays of different sizes N = {counts}; allowed: one N per folder")
+    n_jobs = counts[0]
+    missing = [i for i in range(n_jobs) if (i, n_jobs) not in found]
+    if missing:
+        raise ValueError(
+            f"{folder}: {len(missing)} of {n_jobs} parts missing (jobs {', '.join(map(str, missing[:20]))}"
+            f"{' ...' if len(missing) > 20 else ''}); rerun them with --shard I/{n_jobs}"
+        )
+    parts = []
+    for i in range(n_jobs):
+        with np.load(found[(i, n_jobs)]) as z:
+            doc = json.loads(str(z["shared"]))
+            doc.update({k: z[k] for k in PER_CASE})
+            doc["cases"] = [dict(zip(doc["vary"], map(float, row), strict=True)) for row in z["cases"]]
+        parts.append(doc)
+    first = parts[0]
+    for i, d in enumerate(parts[1:], 1):
+        bad = [k for k in _SAME if json.dumps(d[k]) != json.dumps(first[k])]
+        if bad:
+            raise ValueError(
+                f"{folder}: {part_name((i, n_jobs))} differs from {part_name((0, n_jobs))} in {', '.join(bad)}: "
+                "the parts come from different sweeps"
+            )
+    res = dict(first)
+    for k in PER_CASE:
+        res[k] = np.concatenate([np.asarray(d[k]) for d in parts])
+    res["cases"] = [c for d in parts for c in d["cases"]]
+    if not np.array_equal(res["case_index"], np.arange(first["n_cases"])):
+        raise ValueError(f"{folder}: the parts do not cover cases 0 .. {first['n_cases'] - 1} once each")
+    for k in ("times_s", "profile_x_m"):
+        res[k] = np.asarray(res[k], float)
+    res["time_to_rest_s"] = np.asarray(res["time_to_rest_s"], float)
+    res.update(shard=None, parts=n_jobs, wall_s=float(sum(d["wall_s"] for d in parts)))
+    return res
 
 
 NO_SENSITIVITY_M = 1e-3  # a spread of the results below this [m] is reported as "no sensitivity"

@@ -1,6 +1,6 @@
 """Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | study |
-calibrate | design | sweep``: argument parsing and dispatch only; the work is done by the library
-(``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
+calibrate | design | sweep | sweep-merge``: argument parsing and dispatch only; the work is done by the
+library (``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
 ``calibration``.
 
 Exit status: 0 success, 2 invalid input (the message names the key, the value and the
@@ -204,6 +204,9 @@ def main(argv=None) -> int:
     psw = sub.add_parser("sweep", help="run a grid of material parameters as one vmap batch (runout, time to rest)")
     calcli.add_sweep_arguments(psw)
     psw.set_defaults(fn=calcli.cmd_sweep)
+    psm = sub.add_parser("sweep-merge", help="join the parts of `mpmjax sweep --shard I/N` jobs into one sweep")
+    calcli.add_sweep_merge_arguments(psm)
+    psm.set_defaults(fn=calcli.cmd_sweep_merge)
     args = p.parse_args(argv)
     return args.fn(args)
 
