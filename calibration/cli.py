@@ -460,6 +460,8 @@ def calibrate(args) -> dict:
                 "converged": bool(lv.result.converged),
                 "stop_reason": lv.result.reason,
                 "wall_s": lv.result.wall_s,
+                "cpu_s": lv.result.cpu_s,
+                "evaluations": lv.result.evaluations,
                 "loss_history": [float(v) for v in lv.result.history.min(axis=1)],
             }
             for lv in ml.levels
@@ -496,6 +498,9 @@ def calibrate(args) -> dict:
         "final_losses": [float(v) for v in ml.levels[0].result.final_losses],
         "best_start": ml.levels[0].result.best_start,
         "compile_s": res.compile_s,
+        "cpu_s": res.cpu_s,
+        "compile_cpu_s": res.compile_cpu_s,
+        "evaluations": res.evaluations,
         "scene": cfg["name"],
         "scene_overrides": overrides
         + [finest]

@@ -46,10 +46,13 @@ class FitResult(NamedTuple):
     ``pset``); loss_initial: loss at the initial guess (start 0); loss_final: loss at
     ``params``; history: (iterations + 1, n_starts) loss of each start before each
     iteration and at the end; iterations: iterations run; wall_s: wall time of the loop
-    (compilation included) [s]; compile_s: time of the first iteration [s]; converged:
+    (compilation included) [s]; compile_s: wall time of compiling the model (value and
+    gradient, :class:`Objective`) [s]; converged:
     whether the best start met a convergence criterion; reason: which; best_start: its
     index; starts: initial values per start; finals: fitted values per start;
-    final_losses: final loss per start; gradient: "forward" or "reverse" (how it was computed).
+    final_losses: final loss per start; gradient: "forward" or "reverse" (how it was computed);
+    cpu_s, compile_cpu_s: CPU time of the loop and of the compilation [s] (``time.process_time``,
+    all threads); evaluations: {"value", "value_and_grad"}, model evaluations (one start each).
     """
 
     params: dict
@@ -66,6 +69,9 @@ class FitResult(NamedTuple):
     finals: list
     final_losses: np.ndarray
     gradient: str = "reverse"
+    cpu_s: float = float("nan")
+    compile_cpu_s: float = float("nan")
+    evaluations: dict | None = None
 
 
 # "auto" gradient: forward mode up to this many free parameters (measured break-even ~8.8, see fit())
@@ -157,6 +163,94 @@ def _default_callback(stream=sys.stderr):
     return cb
 
 
+class Objective:
+    """The loss of a fit as separately compiled programs, called from the optimiser through
+    ``jax.pure_callback``.
+
+    ``loss_z(z) -> L`` (z: the (k,) vector of transformed parameters) is compiled twice, on
+    first use: as the value alone and as value and gradient (``gradient``: ``"forward"``, one
+    ``jax.jvp`` tangent per parameter batched by ``vmap``, or ``"reverse"``, ``jax.grad``).
+    :meth:`traced` returns a JAX function of z whose value and ``jax.grad`` call those programs
+    on the host, so the optimiser's own program (optax's L-BFGS update with its zoom line search)
+    holds only callbacks, compiles in seconds, and every line-search trial reuses the one
+    compiled model.
+
+    Why (measured on the joint twin, docs/calibration.md "Speed"): inlined, the update held three
+    copies of the model's value-and-gradient (``optax.value_and_grad_from_state`` and the two
+    branches of the zoom line search's ``lax.cond``); under the ``vmap`` over starts every
+    ``cond`` becomes a select that runs both branches, so each iteration evaluated 1 + 2 x
+    (line-search steps) gradients instead of (line-search steps), and XLA compiled the whole
+    program (15 min for five parameters).
+
+    Counters: ``evaluations`` {"value", "value_and_grad"} (calls, one start each), ``compile_s``
+    / ``compile_cpu_s`` (wall / CPU time of compiling the two programs [s]), ``run_s`` /
+    ``run_cpu_s`` (of running them [s]).
+    """
+
+    def __init__(self, loss_z, gradient: str = "forward"):
+        if gradient not in ("forward", "reverse"):
+            raise ValueError(f"gradient = {gradient!r} is invalid; allowed: 'reverse', 'forward' or 'auto'")
+        self.gradient = gradient
+        if gradient == "forward":
+
+            def vg(z):
+                basis = jnp.eye(z.shape[-1], dtype=z.dtype)
+                vals, tans = jax.vmap(lambda t: jax.jvp(loss_z, (z,), (t,)))(basis)
+                return vals[0], tans
+
+        else:
+            vg = jax.value_and_grad(loss_z)
+        self._fns = {"value": jax.jit(loss_z), "value_and_grad": jax.jit(vg)}
+        self._compiled = {}
+        self.evaluations = {"value": 0, "value_and_grad": 0}
+        self.compile_s = self.compile_cpu_s = self.run_s = self.run_cpu_s = 0.0
+
+    def _call(self, kind, z):
+        z = np.asarray(z)
+        key = (kind, z.shape, z.dtype)
+        if key not in self._compiled:
+            w0, c0 = time.perf_counter(), time.process_time()
+            self._compiled[key] = self._fns[kind].lower(z).compile()
+            self.compile_s += time.perf_counter() - w0
+            self.compile_cpu_s += time.process_time() - c0
+        w0, c0 = time.perf_counter(), time.process_time()
+        out = jax.block_until_ready(self._compiled[key](z))
+        self.run_s += time.perf_counter() - w0
+        self.run_cpu_s += time.process_time() - c0
+        self.evaluations[kind] += 1
+        return out
+
+    def value(self, z):
+        """L at one z (numpy scalar)."""
+        return np.asarray(self._call("value", z))
+
+    def value_and_grad(self, z):
+        """(L, dL/dz) at one z (numpy)."""
+        v, g = self._call("value_and_grad", z)
+        return np.asarray(v), np.asarray(g)
+
+    def traced(self):
+        """z -> L as a JAX function (for optax) whose value and gradient are host callbacks to
+        the compiled programs (not to be ``vmap``-ped: one start per call)."""
+
+        def shapes(z):
+            return jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype)
+
+        @jax.custom_vjp
+        def f(z):
+            return jax.pure_callback(self.value, shapes(z)[0], z)
+
+        def f_fwd(z):
+            v, g = jax.pure_callback(self.value_and_grad, shapes(z), z)
+            return v, g
+
+        def f_bwd(g, ct):
+            return (ct * g,)
+
+        f.defvjp(f_fwd, f_bwd)
+        return f
+
+
 def fit(
     experiments,
     pset,
@@ -186,6 +280,10 @@ def fit(
     forward mode against 8.2 in reverse mode for 2 parameters, 5.3 against 8.0 for 5; about
     1.7 + 0.73 k against 8.1, so forward mode wins up to k = 8.
 
+    The model is compiled once (:class:`Objective`) and called from the optimiser's update, which
+    is compiled apart; the starts step in lockstep, one update call each (a stopped start costs
+    nothing more).
+
     z_starts: optional (n_starts, len(pset.free)) array of starting points in z (replaces the
     generated starts and ``n_starts``; e.g. warm starts, or the grid of a profile likelihood,
     ``calibration.profile``).
@@ -200,32 +298,36 @@ def fit(
     dtype = jnp.dtype(experiments[0].setup.scene.dtype) if hasattr(experiments[0], "setup") else jnp.float64
     if gradient == "auto":
         gradient = "forward" if len(pset.free) <= FORWARD_MODE_MAX_PARAMS else "reverse"
-    loss_z = loss_function(experiments, pset, gradient)
+    obj = Objective(loss_function(experiments, pset, "reverse"), gradient)
+    f = obj.traced()
 
     if method == "adam":
         opt = optax.adam(learning_rate)
 
-        def update(z, s):
-            loss, g = jax.value_and_grad(loss_z)(z)
+        def update(z, s, v, g):
             u, s = opt.update(g, s, z)
-            return optax.apply_updates(z, u), s, loss, g
+            nz = optax.apply_updates(z, u)
+            nv, ng = f_fwd_host(nz)
+            return nz, s, nv, ng
 
     else:
         opt = optax.lbfgs()
-        vg = optax.value_and_grad_from_state(loss_z)
 
-        def update(z, s):
-            loss, g = vg(z, state=s)
-            u, ns = opt.update(g, s, z, value=loss, grad=g, value_fn=loss_z)
+        def update(z, s, v, g):
+            # the line search evaluates the loss and gradient at the accepted step and keeps them in
+            # its state (what optax.value_and_grad_from_state reads): the next iteration reuses them
+            u, ns = opt.update(g, s, z, value=v, grad=g, value_fn=f)
             nz = optax.apply_updates(z, u)
+            nv, ng = optax.tree.get(ns, "value"), optax.tree.get(ns, "grad")
             # a converged line search may return a non-finite step: keep the last iterate
-            ok = jnp.all(jnp.isfinite(nz))
-            nz = jnp.where(ok, nz, z)
-            ns = jax.tree.map(lambda a, b: jnp.where(ok, a, b), ns, s)
-            return nz, ns, loss, g
+            ok = jnp.all(jnp.isfinite(nz)) & jnp.isfinite(nv)
+            return jax.tree.map(lambda a, b: jnp.where(ok, a, b), (nz, ns, nv, ng), (z, s, v, g))
 
-    vupdate = jax.jit(jax.vmap(update))
-    vloss = jax.jit(jax.vmap(loss_z))
+    def f_fwd_host(z):
+        shapes = (jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype))
+        return jax.pure_callback(obj.value_and_grad, shapes, z)
+
+    jupdate = jax.jit(update)
     if z_starts is None:
         z, start_thetas = _starts(pset, int(n_starts), float(start_spread), seed, dtype)
     else:
@@ -233,56 +335,61 @@ def fit(
         if z.ndim != 2 or z.shape[1] != len(pset.free):
             raise ValueError(f"z_starts has shape {z.shape}; expected (starts, {len(pset.free)})")
         start_thetas = [{k: float(v) for k, v in pset.theta(zi).items()} for zi in z]
+    n = z.shape[0]
+    zs = [np.asarray(zi) for zi in z]
     # the optimiser state as the update returns it: optax's initial state holds weak-typed scalars
     # (L-BFGS: its line-search info) that come back strongly typed, and a change of weak type
-    # retraces and recompiles the whole vmapped update on the second iteration (measured: 30 s of
-    # a 77 s twin fit on the 2-core VM)
-    state = jax.tree.map(lambda a: a.astype(a.dtype), jax.vmap(opt.init)(z))
+    # retraces and recompiles the update on the second iteration
+    states = [jax.tree.map(lambda a: a.astype(a.dtype), opt.init(jnp.asarray(zi))) for zi in zs]
     cb = _default_callback() if progress is True else (progress or None)
-    n = z.shape[0]
     running = np.ones(n, bool)
     reason = np.array(["max_iter"] * n, dtype=object)
-    hist = []
-    t0 = time.perf_counter()
-    compile_s = 0.0
+    t0, c0 = time.perf_counter(), time.process_time()
+    vgs = [obj.value_and_grad(zi) for zi in zs]
+    loss = np.array([float(v) for v, _ in vgs])
+    hist = [loss.copy()]
+    if not np.all(np.isfinite(loss)):
+        bad = int(np.flatnonzero(~np.isfinite(loss))[0])
+        raise FloatingPointError(
+            f"calibration: the loss is {loss[bad]} at start {bad}, parameters "
+            f"{ {k: float(v) for k, v in pset.theta(jnp.asarray(zs[bad])).items()} }: the run produced "
+            "non-finite heights"
+        )
     it = 0
     for it in range(1, int(max_iter) + 1):
-        z_new, state_new, loss, g = vupdate(z, state)
-        loss = np.asarray(loss)
-        if it == 1:
-            compile_s = time.perf_counter() - t0
+        for k in np.flatnonzero(running):
+            out = jupdate(jnp.asarray(zs[k]), states[k], jnp.asarray(vgs[k][0]), jnp.asarray(vgs[k][1]))
+            zs[k], states[k] = np.asarray(out[0]), out[1]
+            vgs[k] = (np.asarray(out[2]), np.asarray(out[3]))
+        loss = np.array([float(v) for v, _ in vgs])
         if not np.all(np.isfinite(loss[running])):
             bad = int(np.flatnonzero(~np.isfinite(loss) & running)[0])
             raise FloatingPointError(
                 f"calibration: the loss is {loss[bad]} at start {bad}, iteration {it}, parameters "
-                f"{ {k: float(v) for k, v in pset.theta(z[bad]).items()} }: the run produced non-finite heights"
+                f"{ {k: float(v) for k, v in pset.theta(jnp.asarray(zs[bad])).items()} }: the run produced "
+                "non-finite heights"
             )
-        # frozen starts keep their z (their lanes still compute: vmap has no early exit)
-        keep = jnp.asarray(running)
-        z = jnp.where(keep[:, None], z_new, z)
-        state = jax.tree.map(lambda a, b: jnp.where(keep.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), state_new, state)
-        hist.append(loss)
-        gn = np.asarray(jnp.linalg.norm(g, axis=-1))
+        hist.append(loss.copy())
+        gn = np.array([float(np.linalg.norm(g)) for _, g in vgs])
         H = np.asarray(hist)
         for k in np.flatnonzero(running):
             if loss[k] <= atol:
                 running[k], reason[k] = False, "atol"
             elif gn[k] < gtol:
                 running[k], reason[k] = False, "gtol"
-            elif it > patience:
+            elif it >= patience:
                 old = H[-1 - patience, k]
                 if old - loss[k] <= rtol * abs(old):
                     running[k], reason[k] = False, "rtol"
         if cb is not None:
             b = int(np.argmin(loss))
-            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(z[b]).items()}, running)
+            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(jnp.asarray(zs[b])).items()}, running)
         if not running.any():
             break
-    final = np.asarray(vloss(z))
-    hist.append(final)
     wall = time.perf_counter() - t0
+    final = hist[-1]
     best = int(np.nanargmin(final))
-    finals = [{k: float(v) for k, v in pset.theta(z[i]).items()} for i in range(n)]
+    finals = [{k: float(v) for k, v in pset.theta(jnp.asarray(zi)).items()} for zi in zs]
     return FitResult(
         params=finals[best],
         loss_initial=float(hist[0][0]),
@@ -290,7 +397,7 @@ def fit(
         history=np.asarray(hist),
         iterations=it,
         wall_s=wall,
-        compile_s=compile_s,
+        compile_s=obj.compile_s,
         converged=reason[best] != "max_iter",
         reason=str(reason[best]),
         best_start=best,
@@ -298,4 +405,7 @@ def fit(
         finals=finals,
         final_losses=final,
         gradient=gradient,
+        cpu_s=time.process_time() - c0,
+        compile_cpu_s=obj.compile_cpu_s,
+        evaluations=dict(obj.evaluations),
     )
