@@ -1,8 +1,10 @@
 """Speed and convergence of a five-parameter joint fit (issue 15 item 5; docs/calibration.md, "Speed").
 
 A twin on a dam-break scene: height profiles at three times (kernel bandwidth two cells, 1 mm
-noise) plus the joint twin's rheometer tests (``calibration.synthetic.joint_shear_tests``, 3 %
-noise in ln tau), data made on the fit's own grid at ``JOINT_TRUTH`` with seeded noise, then all
+noise) plus rheometer transients (3 % noise in ln tau): the joint twin's seven pre-sheared tests
+(``calibration.synthetic.joint_shear_tests``: overshoots after rests, rate steps) and a start-up
+at 1 1/s from the as-prepared structure lambda0 (without it, lambda0 stays where it started: the
+profiles alone leave it in a flat valley with alpha and n), data made on the fit's own grid at ``JOINT_TRUTH`` with seeded noise, then all
 five Coussot parameters fitted from a start 1.5x off (as the joint twin).  Reports wall and CPU
 time, the compilation apart, iterations and model evaluations, for forward- or reverse-mode
 gradients.
@@ -56,7 +58,10 @@ def twin_experiments(which, overrides=(), times_s=None, seed=7):
     rng = np.random.default_rng(seed)
     pe = ProfileExperiment(setup, [Profile(x, np.ones_like(x), t) for t in times_s], bandwidth_m=bw)
     hs = [np.maximum(np.asarray(h) + SIGMA_M * rng.standard_normal(x.size), 0.0) for h in pe.model_profiles({})]
-    tests0 = joint_shear_tests()
+    # the joint twin's tests pre-shear, which erases lambda0; a start-up at 1 1/s from the sample
+    # as prepared (the dam break's initial structure) measures it
+    ta = np.geomspace(0.05, 20.0, 12)
+    tests0 = joint_shear_tests() + [ShearTest("8", ta, np.ones(12), np.ones(12))]
     taus = ShearHistoryExperiment(setup.params.material, tests0).model({})
     tests = []
     for t, tau in zip(tests0, taus, strict=True):
