@@ -36,7 +36,7 @@ import optax
 
 from .experiments import joint_loss
 
-__all__ = ["FitResult", "fit", "forward_mode_gradient", "loss_function"]
+__all__ = ["FitResult", "Objective", "fit", "forward_mode_gradient", "loss_function"]
 
 
 class FitResult(NamedTuple):
@@ -96,6 +96,18 @@ def loss_function(experiments, pset, gradient: str = "reverse"):
     return forward_mode_gradient(loss_z)
 
 
+def forward_value_and_grad(f):
+    """z -> (f(z), df/dz) in forward mode: ``jax.jvp`` along every unit vector, batched by ``vmap``
+    (the primal is computed once)."""
+
+    def value_and_grad(z):
+        basis = jnp.eye(z.shape[-1], dtype=z.dtype)
+        vals, tans = jax.vmap(lambda t: jax.jvp(f, (z,), (t,)))(basis)
+        return vals[0], tans
+
+    return value_and_grad
+
+
 def forward_mode_gradient(f):
     """``f(z) -> scalar`` (z a 1-D vector) whose reverse-mode rule is computed in forward mode:
     ``jax.jvp`` along every unit vector, batched by ``vmap`` (the primal is computed once).
@@ -103,10 +115,7 @@ def forward_mode_gradient(f):
     (docs/calibration.md), a tangent about 1.2-1.4 more, so for a few parameters this is the
     cheaper gradient; the values agree to rounding."""
 
-    def value_and_grad(z):
-        basis = jnp.eye(z.shape[-1], dtype=z.dtype)
-        vals, tans = jax.vmap(lambda t: jax.jvp(f, (z,), (t,)))(basis)
-        return vals[0], tans
+    value_and_grad = forward_value_and_grad(f)
 
     @jax.custom_vjp
     def g(z):
@@ -191,15 +200,7 @@ class Objective:
         if gradient not in ("forward", "reverse"):
             raise ValueError(f"gradient = {gradient!r} is invalid; allowed: 'reverse', 'forward' or 'auto'")
         self.gradient = gradient
-        if gradient == "forward":
-
-            def vg(z):
-                basis = jnp.eye(z.shape[-1], dtype=z.dtype)
-                vals, tans = jax.vmap(lambda t: jax.jvp(loss_z, (z,), (t,)))(basis)
-                return vals[0], tans
-
-        else:
-            vg = jax.value_and_grad(loss_z)
+        vg = forward_value_and_grad(loss_z) if gradient == "forward" else jax.value_and_grad(loss_z)
         self._fns = {"value": jax.jit(loss_z), "value_and_grad": jax.jit(vg)}
         self._compiled = {}
         self.evaluations = {"value": 0, "value_and_grad": 0}

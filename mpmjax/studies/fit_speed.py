@@ -4,8 +4,9 @@ A twin on a dam-break scene: height profiles at three times (kernel bandwidth tw
 noise) plus rheometer transients (3 % noise in ln tau): the joint twin's seven pre-sheared tests
 (``calibration.synthetic.joint_shear_tests``: overshoots after rests, rate steps) and a start-up
 at 1 1/s from the as-prepared structure lambda0 (without it, lambda0 stays where it started: the
-profiles alone leave it in a flat valley with alpha and n), data made on the fit's own grid at ``JOINT_TRUTH`` with seeded noise, then all
-five Coussot parameters fitted from a start 1.5x off (as the joint twin).  Reports wall and CPU
+profiles alone leave it in a flat valley with alpha and n), data made on the fit's own grid at
+``JOINT_TRUTH`` with seeded noise, then all five Coussot parameters fitted from a start 1.5x off
+(as the joint twin).  Reports wall and CPU
 time, the compilation apart, iterations and model evaluations, for forward- or reverse-mode
 gradients.
 
