@@ -1,10 +1,11 @@
-"""The fit loop: optax (L-BFGS or Adam) on the transformed parameters, multi-start by vmap.
+"""The fit loop: optax (L-BFGS or Adam) on the transformed parameters, one compiled model, multi-start.
 
 ``fit(experiments, pset)`` minimises the joint loss L = sum_e w_e mean(r_e^2) (see
 ``calibration.experiments``) over the unconstrained vector z of ``pset``
-(``calibration.params.ParameterSet``).  Every start is one lane of a ``jax.vmap``, so n
-starts cost one compiled update and run as a batch.  The host-side loop (one jitted,
-vmapped update per iteration) shows progress and stops early.
+(``calibration.params.ParameterSet``).  The model's value and gradient are compiled once
+(:class:`Objective`) and called from the jitted optimiser update through ``jax.pure_callback``;
+the starts step in lockstep on the host, one update call each per iteration, sharing that
+compiled model.  The host-side loop shows progress and stops each start early.
 
 Starts: start 0 is the specified initial guess; start k > 0 multiplies each free
 parameter by exp(s N(0, 1)) (s = ``start_spread``, default ln 2: a factor of 2 at one
