@@ -87,7 +87,10 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     )
     p.add_argument("--patience", type=int, default=5, help="iterations for the rtol test (default 5)")
     p.add_argument(
-        "--starts", type=int, default=1, help="multi-start: number of starts, stepped in lockstep with one compiled model (default 1)"
+        "--starts",
+        type=int,
+        default=1,
+        help="multi-start: number of starts, stepped in lockstep with one compiled model (default 1)",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the extra starts")
     p.add_argument(
