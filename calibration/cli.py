@@ -113,7 +113,10 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     )
     p.add_argument("--patience", type=int, default=5, help="iterations for the rtol test (default 5)")
     p.add_argument(
-        "--starts", type=int, default=1, help="multi-start: number of starts run as one vmap batch (default 1)"
+        "--starts",
+        type=int,
+        default=1,
+        help="multi-start: number of starts, stepped in lockstep with one compiled model (default 1)",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the extra starts")
     p.add_argument(
@@ -492,6 +495,8 @@ def calibrate(args) -> dict:
                 "converged": bool(lv.result.converged),
                 "stop_reason": lv.result.reason,
                 "wall_s": lv.result.wall_s,
+                "cpu_s": lv.result.cpu_s,
+                "evaluations": lv.result.evaluations,
                 "loss_history": [float(v) for v in lv.result.history.min(axis=1)],
             }
             for lv in ml.levels
@@ -530,6 +535,9 @@ def calibrate(args) -> dict:
         "compile_s": res.compile_s,
         "n_processes": jax.process_count(),
         "n_devices": jax.device_count(),
+        "cpu_s": res.cpu_s,
+        "compile_cpu_s": res.compile_cpu_s,
+        "evaluations": res.evaluations,
         "scene": cfg["name"],
         "scene_overrides": overrides
         + [finest]

@@ -1,15 +1,11 @@
-"""The fit loop: optax (L-BFGS or Adam) on the transformed parameters, multi-start by vmap.
+"""The fit loop: optax (L-BFGS or Adam) on the transformed parameters, one compiled model, multi-start.
 
 ``fit(experiments, pset)`` minimises the joint loss L = sum_e w_e mean(r_e^2) (see
 ``calibration.experiments``) over the unconstrained vector z of ``pset``
-(``calibration.params.ParameterSet``).  Every start is one lane of a ``jax.vmap``, so n
-starts cost one compiled update and run as a batch.  The host-side loop (one jitted,
-vmapped update per iteration) shows progress and stops early.
-
-With several devices (host devices, GPUs, or the devices of every process of a
-``jax.distributed`` job) two or more starts are split over them
-(``calibration.distributed.BatchLayout``); the host loop works on the gathered losses, the same
-on every process, so every process takes the same decisions.
+(``calibration.params.ParameterSet``).  The model's value and gradient are compiled once
+(:class:`Objective`) and called from the jitted optimiser update through ``jax.pure_callback``;
+the starts step in lockstep on the host, one update call each per iteration, sharing that
+compiled model.  The host-side loop shows progress and stops each start early.
 
 Starts: start 0 is the specified initial guess; start k > 0 multiplies each free
 parameter by exp(s N(0, 1)) (s = ``start_spread``, default ln 2: a factor of 2 at one
@@ -39,10 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .distributed import BatchLayout
 from .experiments import joint_loss
 
-__all__ = ["FitResult", "fit", "forward_mode_gradient", "loss_function"]
+__all__ = ["FitResult", "Objective", "fit", "forward_mode_gradient", "loss_function"]
 
 
 class FitResult(NamedTuple):
@@ -52,10 +47,13 @@ class FitResult(NamedTuple):
     ``pset``); loss_initial: loss at the initial guess (start 0); loss_final: loss at
     ``params``; history: (iterations + 1, n_starts) loss of each start before each
     iteration and at the end; iterations: iterations run; wall_s: wall time of the loop
-    (compilation included) [s]; compile_s: time of the first iteration [s]; converged:
+    (compilation included) [s]; compile_s: wall time of compiling the model (value and
+    gradient, :class:`Objective`) [s]; converged:
     whether the best start met a convergence criterion; reason: which; best_start: its
     index; starts: initial values per start; finals: fitted values per start;
-    final_losses: final loss per start; gradient: "forward" or "reverse" (how it was computed).
+    final_losses: final loss per start; gradient: "forward" or "reverse" (how it was computed);
+    cpu_s, compile_cpu_s: CPU time of the loop and of the compilation [s] (``time.process_time``,
+    all threads); evaluations: {"value", "value_and_grad"}, model evaluations (one start each).
     """
 
     params: dict
@@ -72,6 +70,9 @@ class FitResult(NamedTuple):
     finals: list
     final_losses: np.ndarray
     gradient: str = "reverse"
+    cpu_s: float = float("nan")
+    compile_cpu_s: float = float("nan")
+    evaluations: dict | None = None
 
 
 # "auto" gradient: forward mode up to this many free parameters (measured break-even ~8.8, see fit())
@@ -96,6 +97,18 @@ def loss_function(experiments, pset, gradient: str = "reverse"):
     return forward_mode_gradient(loss_z)
 
 
+def forward_value_and_grad(f):
+    """z -> (f(z), df/dz) in forward mode: ``jax.jvp`` along every unit vector, batched by ``vmap``
+    (the primal is computed once)."""
+
+    def value_and_grad(z):
+        basis = jnp.eye(z.shape[-1], dtype=z.dtype)
+        vals, tans = jax.vmap(lambda t: jax.jvp(f, (z,), (t,)))(basis)
+        return vals[0], tans
+
+    return value_and_grad
+
+
 def forward_mode_gradient(f):
     """``f(z) -> scalar`` (z a 1-D vector) whose reverse-mode rule is computed in forward mode:
     ``jax.jvp`` along every unit vector, batched by ``vmap`` (the primal is computed once).
@@ -103,10 +116,7 @@ def forward_mode_gradient(f):
     (docs/calibration.md), a tangent about 1.2-1.4 more, so for a few parameters this is the
     cheaper gradient; the values agree to rounding."""
 
-    def value_and_grad(z):
-        basis = jnp.eye(z.shape[-1], dtype=z.dtype)
-        vals, tans = jax.vmap(lambda t: jax.jvp(f, (z,), (t,)))(basis)
-        return vals[0], tans
+    value_and_grad = forward_value_and_grad(f)
 
     @jax.custom_vjp
     def g(z):
@@ -163,6 +173,104 @@ def _default_callback(stream=sys.stderr):
     return cb
 
 
+class Objective:
+    """The loss of a fit as separately compiled programs, called from the optimiser through
+    ``jax.pure_callback``.
+
+    ``loss_z(z) -> L`` (z: the (k,) vector of transformed parameters) is compiled twice, on
+    first use: as the value alone and as value and gradient (``gradient``: ``"forward"``, one
+    ``jax.jvp`` tangent per parameter batched by ``vmap``, or ``"reverse"``, ``jax.grad``).
+    :meth:`traced` returns a JAX function of z whose value and ``jax.grad`` call those programs
+    on the host, so the optimiser's own program (optax's L-BFGS update with its zoom line search)
+    holds only callbacks, compiles in seconds, and every line-search trial reuses the one
+    compiled model.
+
+    Why (measured on the joint twin, docs/calibration.md "Speed"): inlined, the update held three
+    copies of the model's value-and-gradient (``optax.value_and_grad_from_state`` and the two
+    branches of the zoom line search's ``lax.cond``); under the ``vmap`` over starts every
+    ``cond`` becomes a select that runs both branches, so each iteration evaluated 1 + 2 x
+    (line-search steps) gradients instead of (line-search steps), and XLA compiled the whole
+    program (15 min for five parameters).
+
+    Counters: ``evaluations`` {"value", "value_and_grad"} (calls, one start each), ``compile_s``
+    / ``compile_cpu_s`` (wall / CPU time of compiling the two programs [s]), ``run_s`` /
+    ``run_cpu_s`` (of running them [s]).
+    """
+
+    def __init__(self, loss_z, gradient: str = "forward"):
+        if gradient not in ("forward", "reverse"):
+            raise ValueError(f"gradient = {gradient!r} is invalid; allowed: 'reverse', 'forward' or 'auto'")
+        self.gradient = gradient
+        vg = forward_value_and_grad(loss_z) if gradient == "forward" else jax.value_and_grad(loss_z)
+        self._fns = {"value": jax.jit(loss_z), "value_and_grad": jax.jit(vg)}
+        self._compiled = {}
+        self.evaluations = {"value": 0, "value_and_grad": 0}
+        self.compile_s = self.compile_cpu_s = self.run_s = self.run_cpu_s = 0.0
+
+    def _call(self, kind, z):
+        z = np.asarray(z)
+        key = (kind, z.shape, z.dtype)
+        if key not in self._compiled:
+            w0, c0 = time.perf_counter(), time.process_time()
+            self._compiled[key] = self._fns[kind].lower(z).compile()
+            self.compile_s += time.perf_counter() - w0
+            self.compile_cpu_s += time.process_time() - c0
+        w0, c0 = time.perf_counter(), time.process_time()
+        out = jax.block_until_ready(self._compiled[key](z))
+        self.run_s += time.perf_counter() - w0
+        self.run_cpu_s += time.process_time() - c0
+        self.evaluations[kind] += 1
+        return out
+
+    def value(self, z):
+        """L at one z (numpy scalar)."""
+        return np.asarray(self._call("value", z))
+
+    def value_and_grad(self, z):
+        """(L, dL/dz) at one z (numpy)."""
+        v, g = self._call("value_and_grad", z)
+        return np.asarray(v), np.asarray(g)
+
+    def traced(self):
+        """z -> L as a JAX function (for optax) whose value and gradient are host callbacks to
+        the compiled programs (not to be ``vmap``-ped: one start per call)."""
+
+        def shapes(z):
+            return jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype)
+
+        @jax.custom_vjp
+        def f(z):
+            return jax.pure_callback(self.value, shapes(z)[0], z)
+
+        def f_fwd(z):
+            v, g = jax.pure_callback(self.value_and_grad, shapes(z), z)
+            return v, g
+
+        def f_bwd(g, ct):
+            return (ct * g,)
+
+        f.defvjp(f_fwd, f_bwd)
+        return f
+
+
+def _exchange(mine, zs, loss, gn):
+    """Every start's z, loss and gradient norm on every process of a ``jax.distributed`` job
+    (``mine``: the starts this process runs; the others' entries are gathered from their
+    owners, start k on process k mod P); unchanged in a single-process run."""
+    if jax.process_count() == 1:
+        return zs, loss, gn
+    from jax.experimental import multihost_utils
+
+    z = np.where(mine[:, None], np.stack(zs), 0.0)
+    got = multihost_utils.process_allgather(
+        {"z": z, "loss": np.where(mine, loss, 0.0), "gn": np.where(mine, gn, 0.0)}
+    )
+    k = np.arange(len(mine))
+    owner = k % jax.process_count()
+    z = np.asarray(got["z"])[owner, k]
+    return list(z), np.asarray(got["loss"])[owner, k], np.asarray(got["gn"])[owner, k]
+
+
 def fit(
     experiments,
     pset,
@@ -192,6 +300,10 @@ def fit(
     forward mode against 8.2 in reverse mode for 2 parameters, 5.3 against 8.0 for 5; about
     1.7 + 0.73 k against 8.1, so forward mode wins up to k = 8.
 
+    The model is compiled once (:class:`Objective`) and called from the optimiser's update, which
+    is compiled apart; the starts step in lockstep, one update call each (a stopped start costs
+    nothing more).
+
     z_starts: optional (n_starts, len(pset.free)) array of starting points in z (replaces the
     generated starts and ``n_starts``; e.g. warm starts, or the grid of a profile likelihood,
     ``calibration.profile``).
@@ -206,39 +318,36 @@ def fit(
     dtype = jnp.dtype(experiments[0].setup.scene.dtype) if hasattr(experiments[0], "setup") else jnp.float64
     if gradient == "auto":
         gradient = "forward" if len(pset.free) <= FORWARD_MODE_MAX_PARAMS else "reverse"
-    loss_z = loss_function(experiments, pset, gradient)
+    obj = Objective(loss_function(experiments, pset, "reverse"), gradient)
+    f = obj.traced()
 
     if method == "adam":
         opt = optax.adam(learning_rate)
 
-        def update(z, s):
-            loss, g = jax.value_and_grad(loss_z)(z)
+        def update(z, s, v, g):
             u, s = opt.update(g, s, z)
-            return optax.apply_updates(z, u), s, loss, g
+            nz = optax.apply_updates(z, u)
+            nv, ng = f_fwd_host(nz)
+            return nz, s, nv, ng
 
     else:
         opt = optax.lbfgs()
-        vg = optax.value_and_grad_from_state(loss_z)
 
-        def update(z, s):
-            loss, g = vg(z, state=s)
-            u, ns = opt.update(g, s, z, value=loss, grad=g, value_fn=loss_z)
+        def update(z, s, v, g):
+            # the line search evaluates the loss and gradient at the accepted step and keeps them in
+            # its state (what optax.value_and_grad_from_state reads): the next iteration reuses them
+            u, ns = opt.update(g, s, z, value=v, grad=g, value_fn=f)
             nz = optax.apply_updates(z, u)
+            nv, ng = optax.tree.get(ns, "value"), optax.tree.get(ns, "grad")
             # a converged line search may return a non-finite step: keep the last iterate
-            ok = jnp.all(jnp.isfinite(nz))
-            nz = jnp.where(ok, nz, z)
-            ns = jax.tree.map(lambda a, b: jnp.where(ok, a, b), ns, s)
-            return nz, ns, loss, g
+            ok = jnp.all(jnp.isfinite(nz)) & jnp.isfinite(nv)
+            return jax.tree.map(lambda a, b: jnp.where(ok, a, b), (nz, ns, nv, ng), (z, s, v, g))
 
-    def masked_update(z, s, keep):
-        # frozen starts keep their z and state (their lanes still compute: vmap has no early exit)
-        z_new, s_new, loss, g = jax.vmap(update)(z, s)
-        z_new = jnp.where(keep[:, None], z_new, z)
-        s_new = jax.tree.map(lambda a, b: jnp.where(keep.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), s_new, s)
-        return z_new, s_new, loss, jnp.linalg.norm(g, axis=-1)
+    def f_fwd_host(z):
+        shapes = (jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype))
+        return jax.pure_callback(obj.value_and_grad, shapes, z)
 
-    vupdate = jax.jit(masked_update)
-    vloss = jax.jit(jax.vmap(loss_z))
+    jupdate = jax.jit(update)
     if z_starts is None:
         z, start_thetas = _starts(pset, int(n_starts), float(start_spread), seed, dtype)
     else:
@@ -247,59 +356,66 @@ def fit(
             raise ValueError(f"z_starts has shape {z.shape}; expected (starts, {len(pset.free)})")
         start_thetas = [{k: float(v) for k, v in pset.theta(zi).items()} for zi in z]
     n = z.shape[0]
-    # the starts over every device of every process (one lane is not split: padding it to one per
-    # device would only multiply the work); the host loop below sees gathered numpy arrays, alike
-    # on every process of a jax.distributed job, so that all take the same decisions
-    lanes = BatchLayout(n, min_lanes=2)
-    zh = lanes.pad(np.asarray(z))
-    z = lanes.put(zh)
+    zs = [np.asarray(zi) for zi in z]
     # the optimiser state as the update returns it: optax's initial state holds weak-typed scalars
     # (L-BFGS: its line-search info) that come back strongly typed, and a change of weak type
-    # retraces and recompiles the whole vmapped update on the second iteration (measured: 30 s of
-    # a 77 s twin fit on the 2-core VM)
-    state = jax.jit(lambda z: jax.tree.map(lambda a: a.astype(a.dtype), jax.vmap(opt.init)(z)))(z)
+    # retraces and recompiles the update on the second iteration
+    states = [jax.tree.map(lambda a: a.astype(a.dtype), opt.init(jnp.asarray(zi))) for zi in zs]
     cb = _default_callback() if progress is True else (progress or None)
     running = np.ones(n, bool)
     reason = np.array(["max_iter"] * n, dtype=object)
-    hist = []
-    t0 = time.perf_counter()
-    compile_s = 0.0
+    t0, c0 = time.perf_counter(), time.process_time()
+    # in a jax.distributed job start k runs on process k mod P; _exchange gives every process every
+    # start's z, loss and gradient norm after each iteration, so all take the same decisions
+    mine = np.arange(n) % jax.process_count() == jax.process_index()
+    vgs = [obj.value_and_grad(zi) if mine[k] else (np.asarray(np.nan), np.full_like(zi, np.nan))
+           for k, zi in enumerate(zs)]
+    loss = np.array([float(v) for v, _ in vgs])
+    zs, loss, _ = _exchange(mine, zs, loss, np.zeros(n))
+    hist = [loss.copy()]
+    if not np.all(np.isfinite(loss)):
+        bad = int(np.flatnonzero(~np.isfinite(loss))[0])
+        raise FloatingPointError(
+            f"calibration: the loss is {loss[bad]} at start {bad}, parameters "
+            f"{ {k: float(v) for k, v in pset.theta(jnp.asarray(zs[bad])).items()} }: the run produced "
+            "non-finite heights"
+        )
     it = 0
     for it in range(1, int(max_iter) + 1):
-        keep = lanes.put(lanes.pad(running) & (np.arange(lanes.n_padded) < n))
-        z_next, state, loss, gn = vupdate(z, state, keep)
-        loss, gn = lanes.gather((loss, gn))
-        if it == 1:
-            compile_s = time.perf_counter() - t0
+        for k in np.flatnonzero(running & mine):
+            out = jupdate(jnp.asarray(zs[k]), states[k], jnp.asarray(vgs[k][0]), jnp.asarray(vgs[k][1]))
+            zs[k], states[k] = np.asarray(out[0]), out[1]
+            vgs[k] = (np.asarray(out[2]), np.asarray(out[3]))
+        loss = np.array([float(v) for v, _ in vgs])
+        gn = np.array([float(np.linalg.norm(g)) for _, g in vgs])
+        zs, loss, gn = _exchange(mine, zs, loss, gn)
         if not np.all(np.isfinite(loss[running])):
             bad = int(np.flatnonzero(~np.isfinite(loss) & running)[0])
             raise FloatingPointError(
                 f"calibration: the loss is {loss[bad]} at start {bad}, iteration {it}, parameters "
-                f"{ {k: float(v) for k, v in pset.theta(zh[bad]).items()} }: the run produced non-finite heights"
+                f"{ {k: float(v) for k, v in pset.theta(jnp.asarray(zs[bad])).items()} }: the run produced "
+                "non-finite heights"
             )
-        z = z_next
-        zh = lanes.gather(z)
-        hist.append(loss)
+        hist.append(loss.copy())
         H = np.asarray(hist)
         for k in np.flatnonzero(running):
             if loss[k] <= atol:
                 running[k], reason[k] = False, "atol"
             elif gn[k] < gtol:
                 running[k], reason[k] = False, "gtol"
-            elif it > patience:
+            elif it >= patience:
                 old = H[-1 - patience, k]
                 if old - loss[k] <= rtol * abs(old):
                     running[k], reason[k] = False, "rtol"
         if cb is not None:
             b = int(np.argmin(loss))
-            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(zh[b]).items()}, running)
+            cb(it, int(max_iter), loss, {k: float(v) for k, v in pset.theta(jnp.asarray(zs[b])).items()}, running)
         if not running.any():
             break
-    final = lanes.gather(vloss(z))
-    hist.append(final)
     wall = time.perf_counter() - t0
+    final = hist[-1]
     best = int(np.nanargmin(final))
-    finals = [{k: float(v) for k, v in pset.theta(zh[i]).items()} for i in range(n)]
+    finals = [{k: float(v) for k, v in pset.theta(jnp.asarray(zi)).items()} for zi in zs]
     return FitResult(
         params=finals[best],
         loss_initial=float(hist[0][0]),
@@ -307,7 +423,7 @@ def fit(
         history=np.asarray(hist),
         iterations=it,
         wall_s=wall,
-        compile_s=compile_s,
+        compile_s=obj.compile_s,
         converged=reason[best] != "max_iter",
         reason=str(reason[best]),
         best_start=best,
@@ -315,4 +431,7 @@ def fit(
         finals=finals,
         final_losses=final,
         gradient=gradient,
+        cpu_s=time.process_time() - c0,
+        compile_cpu_s=obj.compile_cpu_s,
+        evaluations=dict(obj.evaluations),
     )

@@ -15,8 +15,8 @@ for the default log transform z = ln theta - ln theta_init) is fixed on a grid o
 ``n_points`` values around the estimate, z_k = z_hat_k + sigma_zk * linspace(-w, w)
 (sigma_zk: the Gauss-Newton std mapped to z; w = ``width_sigma``, default 4), and the other
 parameters are re-optimised by :func:`calibration.fit.fit` (optax L-BFGS, at most
-``max_iter`` iterations), all grid points of a parameter as one ``vmap`` batch of starts that
-begin at the estimate (z_k's gradient is stopped, so it stays at its grid value).  The
+``max_iter`` iterations), all grid points of a parameter as the starts of one fit (one
+compiled model) that begin at the estimate (z_k's gradient is stopped, so it stays at its grid value).  The
 likelihood-ratio statistic is Delta chi^2 = chi^2 - chi^2_min (chi^2_min: the least value
 found, at the estimate or on any profile), and the 95 % interval is where Delta chi^2 <= 3.84
 (the 0.95 quantile of chi^2 with one degree of freedom).  Its ends are found on the signed
