@@ -27,8 +27,8 @@ SUPERSONIC = {"slope-30deg", "drop-1m"}
 # 1.5-2.2 cells thick (summary.json warns below 4), its particles 0.4-0.8 h above the no-slip bed sit
 # at the Tait tension cutoff (J up to 2.1, p = -1.3 kPa, |tau| = 3 Pa, where hydrostatics gives
 # +0.4 kPa), and sum J V0 / sum V0 reaches 1.026 (measured; docs/performance.md, "Stress cases").
-# A slip bed or J-bar removes it (max 0.995 / 0.988), and at the full size (h = 0.01 m, 4.7 cells
-# thick) alpha-10 stays at 1.0034 over 15 s: a resolution defect of the bed's first cell, not the bound.
+# A slip bed or J-bar removes it (max 1.0003 / 1.0000), and at the full size (h = 0.01 m, 4.7 cells
+# thick) alpha-10 stays at 1.0040 over 15 s: a resolution defect of the bed's first cell, not the bound.
 UNDER_RESOLVED = {"alpha-10", "steps-100k"}
 VOLUME_XFAIL = SUPERSONIC | UNDER_RESOLVED
 
