@@ -30,7 +30,6 @@ SUPERSONIC = {"slope-30deg", "drop-1m"}
 # A slip bed or J-bar removes it (max 1.0003 / 1.0000), and at the full size (h = 0.01 m, 4.7 cells
 # thick) alpha-10 stays at 1.0040 over 15 s: a resolution defect of the bed's first cell, not the bound.
 UNDER_RESOLVED = {"alpha-10", "steps-100k"}
-VOLUME_XFAIL = SUPERSONIC | UNDER_RESOLVED
 
 
 @pytest.fixture(scope="module")
