@@ -18,6 +18,10 @@ Variants (each builds its own step and chunk; the library's ``make_chunk`` is ``
 * ``nocse``: ``jax.checkpoint(..., prevent_cse=False)`` (JAX's advice for a scan under checkpoint);
 * ``perstep``: each step also under ``jax.checkpoint`` with ``nothing_saveable`` (the chunk's
   recomputation saves only the step inputs; each step is recomputed once more in the backward pass);
+* ``g2pbarrier``: ``jax.lax.optimization_barrier`` on the G2P's outputs (v_pic, v_p, C, L); in the
+  backward pass it becomes a barrier on their cotangents, which keeps XLA from fusing (and
+  recomputing per stencil entry) the per-particle cotangent chain into the (n S, dim) cotangent of
+  the gathered nodal velocities;
 * ``slices``: the stencil's per-axis weight factors picked by static slices and a concatenate
   instead of ``jnp.take`` (a gather, whose transpose in the backward pass is a scatter-add).
 """
@@ -56,7 +60,24 @@ def make_run(variant):
     if variant == "slices":
         _transfer.jnp = _SlicesNumpy()
     try:
-        if variant in ("nocse", "perstep"):
+        if variant == "g2pbarrier":
+            g2p0 = _transfer.make_g2p
+
+            def barrier_g2p(scene):
+                g = g2p0(scene)
+                return lambda *a: jax.lax.optimization_barrier(g(*a))
+
+            _step.make_g2p = barrier_g2p
+            try:
+                step = _step.make_step(sc)
+            finally:
+                _step.make_g2p = g2p0
+
+            def body(s, params):
+                return jax.lax.scan(lambda c, _: (step(c, params), None), s, None, length=n)[0]
+
+            chunk = jax.checkpoint(body)
+        elif variant in ("nocse", "perstep"):
             step = _step.make_step(sc)
             if variant == "perstep":
                 stp = jax.checkpoint(step, policy=jax.checkpoint_policies.nothing_saveable)
