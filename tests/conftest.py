@@ -1,6 +1,20 @@
-"""Strict test harness: float64 available, rank promotion raises, one tree_allclose."""
+"""Strict test harness: float64 available, rank promotion raises, one tree_allclose; XLA:CPU's
+older loop emitters for fusions (faster compilation, see below)."""
 
-import jax
+import os
+
+# Most of the suite's time is XLA compilation (a test compiles its own scene's programs: the
+# records CI table spends 73 % of its CPU compiling, measured with a warm persistent cache).  The
+# CPU backend's newer fusion emitters compile about a third slower: tests/test_gradients.py,
+# test_rheology_mpm.py and test_boundary_splines.py took 479 s of CPU with them and 314 s without
+# (same 44 tests passing, 2-core VM, 2026-12-02; one float64 gradient program 19 -> 14 s, a
+# forward chunk 3.9 -> 2.5 s), while a step runs within noise of the same speed.  Set before jax
+# is imported, so that the subprocesses the tests start inherit it too.  The library itself keeps
+# XLA's defaults (docs/performance.md, "Test suite").
+if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
+
+import jax  # noqa: E402
 import numpy as np
 import pytest
 

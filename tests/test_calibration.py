@@ -262,7 +262,8 @@ def test_sweep_sharded_over_two_host_devices_equals_one_device(tmp_path):
     )
     outs = []
     for n in (1, 2):
-        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={n}", JAX_PLATFORMS="cpu")
+        flags = os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}"
+        env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
         p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
         assert p.returncode == 0, p.stderr[-2000:]
         outs.append(json.loads(p.stdout.strip().splitlines()[-1]))

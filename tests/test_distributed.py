@@ -53,7 +53,9 @@ def test_sweep_on_two_processes_equals_one_process(tmp_path):
     and batch); process 0 gathers and writes sweep.json, process 1 leaves its --out alone, and the
     result equals the one-process sweep.  The --shard parts of a job array merge to the same."""
     port = _free_port()
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}  # one CPU device per process
+    # one CPU device per process: no host-device count (the harness's other XLA flags are kept)
+    flags = " ".join(f for f in os.environ.get("XLA_FLAGS", "").split() if "device_count" not in f)
+    env = dict(os.environ, XLA_FLAGS=flags)
     env.update(JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""))
     procs = [
         subprocess.Popen(

@@ -52,7 +52,7 @@ def test_two_host_devices_give_the_one_device_positions():
     Measured: 13 s of CPU time (two compilations), so about 13 s on the idle 2-core VM; 40-48 s of
     wall time at load 9-10.
     """
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    env = dict(os.environ, XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
     p = subprocess.run(
         [sys.executable, "-c", _CODE], capture_output=True, text=True, env=env, cwd=ROOT, timeout=300
     )
@@ -91,7 +91,7 @@ def test_two_host_devices_give_the_one_device_gradient():
     transpose of the reduction would be off by a factor of order 2.  Slow: 48 s of CPU time (two
     reverse-mode compilations), so not in CI.
     """
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    env = dict(os.environ, XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
     p = subprocess.run([sys.executable, "-c", _GRAD], capture_output=True, text=True, env=env, cwd=ROOT, timeout=900)
     assert p.returncode == 0, p.stderr[-3000:]
     r = json.loads(p.stdout.strip().splitlines()[-1])
