@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.experimental import multihost_utils
 
 from .experiments import joint_loss
 
@@ -259,8 +260,6 @@ def _exchange(mine, zs, loss, gn):
     owners, start k on process k mod P); unchanged in a single-process run."""
     if jax.process_count() == 1:
         return zs, loss, gn
-    from jax.experimental import multihost_utils
-
     z = np.where(mine[:, None], np.stack(zs), 0.0)
     got = multihost_utils.process_allgather(
         {"z": z, "loss": np.where(mine, loss, 0.0), "gn": np.where(mine, gn, 0.0)}
