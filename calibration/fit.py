@@ -232,20 +232,21 @@ class Objective:
         v, g = self._call("value_and_grad", z)
         return np.asarray(v), np.asarray(g)
 
+    def traced_value_and_grad(self, z):
+        """(L, dL/dz) at a traced z, by a host callback to the compiled value-and-gradient."""
+        shapes = jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype)
+        return jax.pure_callback(self.value_and_grad, shapes, z)
+
     def traced(self):
         """z -> L as a JAX function (for optax) whose value and gradient are host callbacks to
         the compiled programs (not to be ``vmap``-ped: one start per call)."""
 
-        def shapes(z):
-            return jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype)
-
         @jax.custom_vjp
         def f(z):
-            return jax.pure_callback(self.value, shapes(z)[0], z)
+            return jax.pure_callback(self.value, jax.ShapeDtypeStruct((), z.dtype), z)
 
         def f_fwd(z):
-            v, g = jax.pure_callback(self.value_and_grad, shapes(z), z)
-            return v, g
+            return self.traced_value_and_grad(z)
 
         def f_bwd(g, ct):
             return (ct * g,)
@@ -326,7 +327,7 @@ def fit(
         def update(z, s, v, g):
             u, s = opt.update(g, s, z)
             nz = optax.apply_updates(z, u)
-            nv, ng = f_fwd_host(nz)
+            nv, ng = obj.traced_value_and_grad(nz)
             return nz, s, nv, ng
 
     else:
@@ -341,10 +342,6 @@ def fit(
             # a converged line search may return a non-finite step: keep the last iterate
             ok = jnp.all(jnp.isfinite(nz)) & jnp.isfinite(nv)
             return jax.tree.map(lambda a, b: jnp.where(ok, a, b), (nz, ns, nv, ng), (z, s, v, g))
-
-    def f_fwd_host(z):
-        shapes = (jax.ShapeDtypeStruct((), z.dtype), jax.ShapeDtypeStruct(z.shape, z.dtype))
-        return jax.pure_callback(obj.value_and_grad, shapes, z)
 
     jupdate = jax.jit(update)
     if z_starts is None:
