@@ -6,7 +6,8 @@
   profiles, front against time, repeated releases after rests), ``FlowCurveExperiment``,
   ``TransientExperiment``, ``ShearHistoryExperiment`` (rheometer: flow curve, constant-rate
   transients, rate steps and overshoot after rest), ``joint_loss`` (``calibration.experiments``).
-* ``fit`` / ``FitResult`` (``calibration.fit``): optax L-BFGS or Adam around one compiled model, multi-start.
+* ``fit`` / ``FitResult`` (``calibration.fit``): Levenberg-Marquardt (optimistix), L-BFGS or Adam (optax)
+  around one compiled model, multi-start.
 * ``gauss_newton`` / ``Uncertainty`` (``calibration.uncertainty``): std, correlation, identifiability;
   ``numerical_uncertainty`` / ``combine``: the discretisation std from fits at several cell sizes.
 * ``design`` (``calibration.design``): rank candidate measurements by D-optimal gain

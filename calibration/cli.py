@@ -105,11 +105,21 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
         "--transform", action="append", metavar="NAME=KIND", help="log (default), softplus, linear, identity"
     )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scene override, e.g. domain.cell_size_m=0.02")
-    p.add_argument("--method", default="lbfgs", choices=("lbfgs", "adam"), help="optax optimiser (default lbfgs)")
+    p.add_argument(
+        "--method",
+        default="lm",
+        choices=("lm", "lbfgs", "adam"),
+        help="lm: Levenberg-Marquardt (optimistix; default: a few iterations for a least-squares fit), "
+        "lbfgs or adam (optax)",
+    )
     p.add_argument("--max-iter", type=int, default=50, help="maximum iterations (default 50)")
     p.add_argument("--learning-rate", type=float, default=0.05, help="Adam step in ln(parameter) (default 0.05)")
     p.add_argument(
-        "--rtol", type=float, default=1e-4, help="stop when the loss falls by less than this over --patience iterations"
+        "--rtol",
+        type=float,
+        default=1e-4,
+        help="stop when the loss falls by less than this (relative) over --patience iterations, and with lm "
+        "also when the Gauss-Newton step predicts a relative decrease below it (default 1e-4)",
     )
     p.add_argument("--patience", type=int, default=5, help="iterations for the rtol test (default 5)")
     p.add_argument(
@@ -197,7 +207,7 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
         "--profile-width", type=float, default=4.0, help="grid half-width in Gauss-Newton std (default 4)"
     )
     p.add_argument(
-        "--profile-max-iter", type=int, default=10, help="L-BFGS iterations per profile point (default 10)"
+        "--profile-max-iter", type=int, default=10, help="fit iterations per profile point (default 10)"
     )
     p.add_argument("--out", default="calibration-out", help="output folder (default calibration-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")

@@ -226,6 +226,35 @@ def test_fit_recovers_flow_curve_parameters_from_a_factor_two_guess():
     assert r3.loss_final == pytest.approx(r.loss_final, rel=1e-6)
 
 
+def test_levenberg_marquardt_reaches_the_lbfgs_optimum_in_fewer_evaluations():
+    """method="lm" (optimistix's Levenberg-Marquardt on the residual vector, Jacobian in forward
+    mode) on the flow-curve twin above: the same minimum as a tightly converged L-BFGS (loss to
+    1e-6 relative, parameters to 1e-3: the optimum is well-posed, and both stop within a
+    relative loss change of 1e-10 of it), meeting its own stated criterion ("rtol": MINPACK's
+    ftol test), with at most 0.6 times the model evaluations (Gauss-Newton steps converge
+    quadratically on a small-residual problem; L-BFGS builds its curvature from gradients)."""
+    base = m.CoussotParams(*(jnp.float64(v) for v in (1850.0, 15000.0, 4.0, 1.0, 0.5, 2.5, 1.5, 5000.0)))
+    from mpmjax.rheometer import steady_flow_curve
+
+    g = np.logspace(-1, 2, 12)
+    tau = np.asarray(steady_flow_curve(base, g)[0]) * np.exp(0.02 * np.random.default_rng(3).standard_normal(12))
+    exp = FlowCurveExperiment(base, g, tau, sigma_ln=0.02)
+    ps = ParameterSet.from_names(["mu0", "n", "alpha"], base, init={"mu0": 8.0, "n": 5.0, "alpha": 0.5})
+    ref = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
+    r = fit([exp], ps, method="lm", max_iter=100, rtol=1e-10, progress=False)
+    assert r.converged and r.reason == "rtol", r.reason
+    assert r.loss_final == pytest.approx(ref.loss_final, rel=1e-6)
+    for k in ps.free:
+        assert r.params[k] == pytest.approx(ref.params[k], rel=1e-3), k
+    n_lm = r.evaluations["residuals_and_jacobian"]
+    n_lbfgs = ref.evaluations["value_and_grad"] + ref.evaluations["value"]
+    assert n_lm <= 0.6 * n_lbfgs, (n_lm, n_lbfgs)  # measured: 8 against 17
+    # multi-start: every start steps on its own trust region; the best reaches the same optimum
+    r3 = fit([exp], ps, method="lm", max_iter=100, rtol=1e-10, n_starts=3, progress=False)
+    assert r3.history.shape[1] == 3
+    assert r3.loss_final == pytest.approx(ref.loss_final, rel=1e-6)
+
+
 # ---------------------------------------------------------------------------- sweep
 SMALL = ["domain.cell_size_m=0.06", "time.t_end_s=0.3", "time.n_frames=3"]
 
@@ -485,7 +514,8 @@ def test_sweep_plots_real_sensitivity_is_drawn():
 def test_calibrate_cli_and_python_api_give_the_same_fit(tmp_path):
     """Issue 15: "everything runs from the CLI and from Python with the same results".  One small
     fit both ways: mu0 of a coarse dam break (h = 0.06 m, 0.3 s) against one made-up profile (a
-    SYNTHETIC wedge, 20 mm at the wall to 0 at 0.6 m), 2 L-BFGS iterations from mu0 = 6.  The CLI
+    SYNTHETIC wedge, 20 mm at the wall to 0 at 0.6 m), 2 iterations of the default method
+    (Levenberg-Marquardt) from mu0 = 6.  The CLI
     builds the same scene, experiment and parameter set from its options as the Python calls
     below, and both run the same deterministic float64 programs, so the fitted value, the loss
     history and the evaluation count agree to rounding (rtol 1e-9; measured: identical)."""
@@ -510,5 +540,5 @@ def test_calibrate_cli_and_python_api_give_the_same_fit(tmp_path):
     assert doc["iterations"] == r.iterations == 2 and doc["gradient"] == r.gradient == "forward"
     assert doc["params"]["mu0"] == pytest.approx(r.params["mu0"], rel=1e-9)
     np.testing.assert_allclose(doc["loss_history"], r.history[:, 0], rtol=1e-9)
-    assert doc["evaluations"] == r.evaluations and r.evaluations["value_and_grad"] >= 3
+    assert doc["evaluations"] == r.evaluations and r.evaluations["residuals_and_jacobian"] == 3
     assert r.history[-1, 0] < r.history[0, 0] and r.params["mu0"] != 6.0
