@@ -184,7 +184,9 @@ def test_multilevel_twin_mu0_with_a_true_total_error_bar(tmp_path, capsys):
     reported 2 sigma total interval (or mu0 named poorly identified); fit.json's std_numerical is
     the shift between the levels and std the quadrature sum.  Also asserted, because it is why
     the numerical std exists: the resolution error dominates, std_numerical > 5 std_statistical
-    (measured 2.65 against 0.087 Pa s, docs/calibration.md), and the coarse level alone is off by
-    more than 2 statistical std; at the data's resolution the loss falls to the noise level.
-    About 170 s on the idle 2-core VM: in CI its reduced form above runs instead."""
+    (measured with L-BFGS 2.65 against 0.087 Pa s, docs/calibration.md; with the default
+    Levenberg-Marquardt since 2026-12-02: coarse 2.932, fine 5.627 Pa s (+2.3 %), numerical 2.7
+    against statistical 0.087), and the coarse level alone is off by more than 2 statistical std;
+    at the data's resolution the loss falls to the noise level (0.60).  About 170 s on the idle
+    2-core VM with L-BFGS, 41 s with LM (one core): in CI its reduced form above runs instead."""
     _multilevel_twin(tmp_path, capsys, (0.3, 0.6), 8, 4)
