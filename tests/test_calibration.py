@@ -203,18 +203,24 @@ def test_gauss_newton_flags_a_combination_the_data_cannot_separate():
 
 
 # ---------------------------------------------------------------- fit loop: flow curve
+def _flow_curve_twin():
+    """(base, experiment, pset): 12 noisy points (2 % seeded noise) of the BASE flow curve, mu0, n
+    and alpha free from a guess about a factor 2 off."""
+    from mpmjax.rheometer import steady_flow_curve
+
+    base = m.CoussotParams(*(jnp.float64(v) for v in (1850.0, 15000.0, 4.0, 1.0, 0.5, 2.5, 1.5, 5000.0)))
+    g = np.logspace(-1, 2, 12)
+    tau = np.asarray(steady_flow_curve(base, g)[0]) * np.exp(0.02 * np.random.default_rng(3).standard_normal(12))
+    exp = FlowCurveExperiment(base, g, tau, sigma_ln=0.02)
+    return base, exp, ParameterSet.from_names(["mu0", "n", "alpha"], base, init={"mu0": 8.0, "n": 5.0, "alpha": 0.5})
+
+
 def test_fit_recovers_flow_curve_parameters_from_a_factor_two_guess():
     """Flow-curve twin: 12 noisy points (2 % noise) of the BASE flow curve; fit mu0, n and
     alpha (T fixed: the curve depends on alpha*T only).  The loss must fall by > 95 % and
     the parameters come back within 3 standard deviations of the Gauss-Newton estimate
     (the 99.7 % band of a well-posed linearised fit)."""
-    base = m.CoussotParams(*(jnp.float64(v) for v in (1850.0, 15000.0, 4.0, 1.0, 0.5, 2.5, 1.5, 5000.0)))
-    from mpmjax.rheometer import steady_flow_curve
-
-    g = np.logspace(-1, 2, 12)
-    tau = np.asarray(steady_flow_curve(base, g)[0]) * np.exp(0.02 * np.random.default_rng(3).standard_normal(12))
-    exp = FlowCurveExperiment(base, g, tau, sigma_ln=0.02)
-    ps = ParameterSet.from_names(["mu0", "n", "alpha"], base, init={"mu0": 8.0, "n": 5.0, "alpha": 0.5})
+    base, exp, ps = _flow_curve_twin()
     r = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
     assert r.loss_final < 0.05 * r.loss_initial
     u = gauss_newton([exp], ps, r.params)
@@ -233,13 +239,7 @@ def test_levenberg_marquardt_reaches_the_lbfgs_optimum_in_fewer_evaluations():
     relative loss change of 1e-10 of it), meeting its own stated criterion ("rtol": MINPACK's
     ftol test), with at most 0.6 times the model evaluations (Gauss-Newton steps converge
     quadratically on a small-residual problem; L-BFGS builds its curvature from gradients)."""
-    base = m.CoussotParams(*(jnp.float64(v) for v in (1850.0, 15000.0, 4.0, 1.0, 0.5, 2.5, 1.5, 5000.0)))
-    from mpmjax.rheometer import steady_flow_curve
-
-    g = np.logspace(-1, 2, 12)
-    tau = np.asarray(steady_flow_curve(base, g)[0]) * np.exp(0.02 * np.random.default_rng(3).standard_normal(12))
-    exp = FlowCurveExperiment(base, g, tau, sigma_ln=0.02)
-    ps = ParameterSet.from_names(["mu0", "n", "alpha"], base, init={"mu0": 8.0, "n": 5.0, "alpha": 0.5})
+    _, exp, ps = _flow_curve_twin()
     ref = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
     r = fit([exp], ps, method="lm", max_iter=100, rtol=1e-10, progress=False)
     assert r.converged and r.reason == "rtol", r.reason
