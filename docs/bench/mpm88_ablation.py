@@ -17,6 +17,13 @@ at a time, cumulatively, each a variant compiled apart:
   inward velocity) and the loss detection (stencil inside the grid, finite state, active mask,
   the state kept where a particle is lost);
 
+then, as the lever the ablation points to,
+
+* ``F E with the MLS force``: E's physics (Tait pressure, Maxwell deviatoric stress, walls, loss
+  checks) with the whole stress folded into the APIC affine term as MLS-MPM does (Hu et al. 2018:
+  the impulse -dt V sigma D^-1 (x_i - x_p) w_ip, D = h^2 / 4 for the quadratic B-spline), 3
+  channels, and C as the velocity gradient (no grad w at all);
+
 and mpmjax's own mpm88-equivalent (``studies.bench.MPM88``) beside them.  All: 128^2 cells (mpmjax:
 135^2 nodes with its ghost layers), 8192 particles, float32, ``steps`` steps per call in one
 ``lax.scan``; compiled first, then timed in rounds, each round in a rotated order (CPU time of
@@ -59,8 +66,9 @@ def _weights(f):
 
 
 def variant(level: str, steps: int):
-    """(state, advance) of the port with the pieces up to ``level`` (A..E) switched on."""
-    force5, dev, tait, walls = (level >= "B"), (level >= "C"), (level >= "D"), (level >= "E")
+    """(state, advance) of the port with the pieces up to ``level`` (A..E) switched on; F: E's pieces
+    with the MLS force instead of the separate force channels."""
+    force5, dev, tait, walls = (level in "BCDE"), (level >= "C"), (level >= "D"), (level >= "E")
     p_vol = (0.5 * DX) ** 2
     p_mass = RHO * p_vol
     k = jnp.arange(NX * NY)
@@ -103,8 +111,10 @@ def variant(level: str, steps: int):
             inv = jnp.where(m > 0, 1.0 / jnp.where(m > 0, m, 1.0), 0.0)
             gv = (grid[:, 1:3] + DT * grid[:, 3:5]) * inv[:, None]
         else:
-            impulse = -DT * 4.0 * KAPPA * p_vol * (1.0 - s.J) / DX**2
-            affine = -impulse[:, None, None] * eye[None] + p_mass * s.C
+            # MLS: the stress impulse -dt V sigma D^-1 in the affine term (D^-1 = 4 / h^2)
+            sigma = -p[:, None, None] * eye[None] + (s.tau if dev else 0.0)
+            vol = p_vol * s.J if level == "F" else jnp.full_like(s.J, p_vol)  # the port: V0, as taichi_mlsmpm.py
+            affine = -DT * 4.0 / DX**2 * vol[..., None, None] * sigma + p_mass * s.C
             mom = wt[..., None] * (p_mass * s.v[:, None, :] + jnp.einsum("nij,nsj->nsi", affine, r))
             chans = jnp.concatenate([mom, (wt * p_mass)[..., None]], axis=-1).reshape(-1, 3)
             grid = jnp.zeros((N_GRID * N_GRID, 3), jnp.float32).at[idx.reshape(-1)].add(chans)
@@ -118,12 +128,11 @@ def variant(level: str, steps: int):
         nv = jnp.sum(wt[..., None] * gvp, axis=1)
         nC = 4.0 / DX**2 * jnp.einsum("ns,nsi,nsj->nij", wt, gvp, r)
         x = s.x + DT * nv
-        if force5:
-            L = jnp.einsum("nsi,nsj->nij", gvp, gw)
-            J = s.J * jnp.linalg.det(eye[None] + DT * L)
-        else:
-            L = nC
+        L = jnp.einsum("nsi,nsj->nij", gvp, gw) if force5 else nC  # MLS: C is the velocity gradient
+        if level == "A":
             J = s.J * (1.0 + DT * (nC[:, 0, 0] + nC[:, 1, 1]))
+        else:
+            J = s.J * jnp.linalg.det(eye[None] + DT * L)
         tau = s.tau
         if dev:
             d = 0.5 * (L + jnp.swapaxes(L, 1, 2))
@@ -163,7 +172,7 @@ def main(steps: int = 500, rounds: int = 6) -> None:
     from mpmjax.studies.bench import MPM88
 
     names = {"A": "A minimal", "B": "B +force channels", "C": "C +Maxwell deviatoric", "D": "D +Tait EOS",
-             "E": "E +walls and loss checks"}
+             "E": "E +walls and loss checks", "F": "F E with the MLS force"}
     progs, y0 = {}, {}
     for lv, nm in names.items():
         st, adv = variant(lv, steps)
