@@ -341,6 +341,15 @@ def build(cfg: dict) -> Setup:
         vol0 = np.concatenate([vol0, np.full(len(park), area * thickness / n_per)])
         v_pool = np.broadcast_to(u * d, park.shape)
         v = np.concatenate([v, v_pool])
+    if cfg["numerics.force"] == "mls" and (
+        cfg["numerics.transfer"] != "apic" or cfg["numerics.shape"] not in ("quadratic", "cubic")
+    ):
+        raise SceneError(
+            f"numerics.force = \"mls\" is invalid with numerics.transfer = {cfg['numerics.transfer']!r} and "
+            f"numerics.shape = {cfg['numerics.shape']!r}: allowed with transfer = \"apic\" and shape = \"quadratic\" "
+            f"or \"cubic\" (MLS needs APIC's affine matrix and a constant inertia D = h^2/4 or h^2/3), or use "
+            f"numerics.force = \"gradient\""
+        )
     lim = time_step_limits(cfg, params, x, v, rheology)
     t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
     dt_req = cfg["numerics.dt_s"]
@@ -407,6 +416,7 @@ def build(cfg: dict) -> Setup:
         volume_averaging=cfg["numerics.volume_averaging"],
         devices=int(cfg["numerics.devices"]),
         transfer=cfg["numerics.transfer"],
+        force=cfg["numerics.force"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],

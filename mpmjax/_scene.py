@@ -154,6 +154,8 @@ class Scene:
       transfer: ``apic`` or ``flip`` (FLIP/PIC blend ``flip_blend``).
       rheology: a model instance from ``_rheology`` (static description).
       shear_measure: ``standard`` (sqrt(2 d':d')) or ``thesis`` (d':d'/4).
+      force: ``gradient`` (the stress as a nodal force through grad w) or ``mls`` (the
+        stress impulse in APIC's affine momentum, C as the velocity gradient; ``_transfer``).
       viscous_update: ``maxwell`` (exponential Maxwell relaxation, stable for any mu)
         or ``explicit`` (sigma' = 2 mu d', needs dt < rho h^2/(2 d mu)).
       maxwell_G: Maxwell shear modulus [Pa] (numerical regularisation).
@@ -197,6 +199,7 @@ class Scene:
     grid_density_cap: float = 0.0
     volume_averaging: str = "none"
     devices: int = 1
+    force: str = "gradient"
 
     @property
     def n_nodes(self) -> int:

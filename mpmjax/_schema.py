@@ -91,6 +91,16 @@ _HEAD: dict[str, Key] = {
     "numerics.transfer": Key(
         str, "apic", "-", "Particle-grid transfer: APIC or a FLIP/PIC blend.", choices=("apic", "flip")
     ),
+    "numerics.force": Key(
+        str,
+        "gradient",
+        "-",
+        "How the stress reaches the grid. gradient: as a nodal force f_i = -sum V sigma grad w_ip (any shape "
+        "function). mls: EXPERIMENTAL, MLS-MPM (Hu et al. 2018): the impulse -dt V sigma D^-1 folded into APIC's "
+        "affine momentum and C used as the velocity gradient; 0.64x the step's CPU in docs/performance.md's "
+        "ablation; needs transfer = apic and shape = quadratic or cubic; not validated against the records.",
+        choices=("gradient", "mls"),
+    ),
     "numerics.flip_blend": Key(
         float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0
     ),

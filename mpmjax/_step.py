@@ -112,7 +112,8 @@ def make_step(scene: Scene, axis: str | None = None):
         inv_m = jnp.where(has, 1.0 / jnp.where(has, mass, 1.0), 0.0)
         v_old = mom * inv_m[:, None]
         g = jnp.asarray(params.gravity, dtp)[None, :]
-        v_new = jnp.where(has[:, None], v_old + dt * (force * inv_m[:, None] + g), 0.0)
+        accel = g if force is None else force * inv_m[:, None] + g  # force None: numerics.force = "mls"
+        v_new = jnp.where(has[:, None], v_old + dt * accel, 0.0)
         for i, (mask, nrm, wall) in enumerate(walls):
             if i in slip_nb:  # the first interior nodes as the walls before this one left them
                 v_wall = navier_slip(v_new, nrm, v_new[slip_nb[i]], wall.slip_length / scene.h)

@@ -145,7 +145,8 @@ def scatter_add(idx, vals, n_nodes: int):
 
 
 def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
-    """Returns ``p2g(state, params) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``.
+    """Returns ``p2g(state, params) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``;
+    with ``scene.force == "mls"`` the force is None (the stress impulse is in the momentum).
 
     ``axis``: inside ``shard_map`` over particles (``_shard``), the mesh axis name over which
     each device's partial grid is summed (``psum``), so every device gets the whole grid.
@@ -153,6 +154,11 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
     """
     dim = scene.dim
     apic = scene.transfer == "apic"
+    # numerics.force = "mls" (MLS-MPM, Hu et al. 2018): the stress enters as the impulse
+    # -dt V sigma D^-1 (x_i - x_p) w_ip in the affine momentum, not as a force channel through grad w
+    mls = scene.force == "mls"
+    if mls:
+        inv_d = 1.0 / (_shapes.APIC_D_FACTOR[scene.shape] * scene.h**2)
 
     def p2g(state: State, params: Params):
         mat = params.material
@@ -167,12 +173,17 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
         else:
             vel = jnp.broadcast_to(state.v[:, None, :], st.r.shape)
         mom = mw[..., None] * vel
-        force = -vol[:, None, None] * _bmv(sigma, st.dw)
-        chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
+        if mls:
+            impulse = (-scene.dt * inv_d) * vol[:, None, None] * sigma
+            mom = mom + st.w[..., None] * _bmv(impulse, st.r)
+            chans = jnp.concatenate([mw[..., None], mom], axis=-1)  # (n, S, 1+dim)
+        else:
+            force = -vol[:, None, None] * _bmv(sigma, st.dw)
+            chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
         grid = scatter(st.idx, chans, scene.n_nodes)
         if axis is not None:
             grid = jax.lax.psum(grid, axis)
-        return grid[:, 0], grid[:, 1 : 1 + dim], grid[:, 1 + dim :], st
+        return grid[:, 0], grid[:, 1 : 1 + dim], (None if mls else grid[:, 1 + dim :]), st
 
     return p2g
 
@@ -182,7 +193,8 @@ def make_g2p(scene: Scene):
 
     ``st`` the particles' ``_Stencil``, ``v_new`` / ``v_old`` the nodal velocities (N, dim)
     after / before the grid update, ``v`` the particle velocities (n, dim) of the state.
-    v_pic = sum_i w_ip v_i (the velocity that moves the particle); L = sum_i v_i (x) grad w_ip;
+    v_pic = sum_i w_ip v_i (the velocity that moves the particle); L = sum_i v_i (x) grad w_ip
+    (with ``scene.force == "mls"``: L = C, MLS-MPM's velocity gradient);
     APIC: v_p = v_pic, C = B D^-1 for B-splines (D = ``APIC_D_FACTOR`` h^2 I), C = L for linear
     and GIMP; FLIP: v_p = blend (v + sum_i w_ip (v_new - v_old)_i) + (1 - blend) v_pic, C = 0.
 
@@ -195,17 +207,20 @@ def make_g2p(scene: Scene):
     affine velocity fields and differ by O(h |grad^2 v|) across the first cell's edge.
     """
     d_apic = _shapes.APIC_D_FACTOR.get(scene.shape)
+    mls = scene.force == "mls"
 
     def g2p(st: _Stencil, v_new, v_old, v):
         vi = v_new[st.idx]  # (n, S, dim)
         v_pic = _wsum(st.w, vi)
-        L = _outer_sum(vi, st.dw)
+        L = None if mls else _outer_sum(vi, st.dw)
         if scene.transfer == "apic":
             v_p = v_pic
             if d_apic is not None:
                 B = _outer_sum(st.w[:, :, None] * vi, st.r)
                 C = B / (d_apic * scene.h**2)
-                if st.modified is not None:
+                if mls:  # MLS: the affine matrix is the velocity gradient
+                    L = C
+                elif st.modified is not None:
                     C = jnp.where(st.modified[:, None, :], L, C)
             else:
                 C = L

@@ -193,8 +193,8 @@ def main(steps: int = 500, rounds: int = 6) -> None:
             c0, w0 = time.process_time(), time.perf_counter()
             jax.block_until_ready(progs[k]())
             cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-            print(json.dumps({"part": "mpm88_ablation", "code": k, "round": rnd + 1, "steps": steps, "n_particles": 8192,
-                              "cpu_s": cpu, "wall_s": wall, "mean_fall_m": fall[k], "load_avg_start": load,
+            print(json.dumps({"part": "mpm88_ablation", "code": k, "round": rnd + 1, "steps": steps,
+                              "n_particles": 8192, "cpu_s": cpu, "wall_s": wall, "mean_fall_m": fall[k], "load_avg_start": load,
                               "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}), flush=True)
 
 
