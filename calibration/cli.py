@@ -305,6 +305,11 @@ def calibrate(args) -> dict:
     names = [s.strip() for s in args.fit.split(",") if s.strip()]
     if not names:
         raise ValueError("--fit: name at least one parameter, e.g. --fit mu0,n")
+    if args.method == "lm" and args.gradient == "reverse":  # refused before any scene is built
+        raise ValueError(
+            "--gradient reverse is invalid with --method lm; allowed: forward or auto (the Jacobian of the "
+            "residuals is computed in forward mode, one tangent per parameter), or --method lbfgs / adam"
+        )
     init = _kv(args.init, "--init")
     cfg0, overrides = _scene_overrides(args, data_times, init)
     if args.profile:
