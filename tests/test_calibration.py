@@ -353,7 +353,8 @@ def test_calibrate_cli_bad_input_exits_2(tmp_path, capsys):
         == 2
     )
     assert "material.mu0_pa_s" in capsys.readouterr().err
-    assert _cli("calibrate", str(good), "--scene", TWIN, "--fit", "mu0", "--gradient", "reverse", "--out", str(tmp_path)) == 2
+    lm_reverse = ("--fit", "mu0", "--gradient", "reverse", "--out", str(tmp_path))
+    assert _cli("calibrate", str(good), "--scene", TWIN, *lm_reverse) == 2
     assert "--gradient reverse is invalid with --method lm; allowed: forward or auto" in capsys.readouterr().err
     assert _cli("calibrate", str(tmp_path / "none.csv"), "--scene", TWIN, "--fit", "mu0", "--out", str(tmp_path)) == 2
     assert "no such file" in capsys.readouterr().err
