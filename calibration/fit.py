@@ -19,8 +19,8 @@ Stopping (per start; the loop ends when every start has stopped or ``max_iter``)
 * not converged: ``max_iter`` reached first.
 
 Methods: ``lm`` (the default: Levenberg-Marquardt, ``optimistix.LevenbergMarquardt``, on
-the residual vector R = concat_e sqrt(w_e / N_e) r_e, so that L = |R|^2: one step evaluates R and its Jacobian in
-forward mode, one tangent per parameter, which costs what a forward-mode gradient costs, and
+the residual vector R = concat_e sqrt(w_e / N_e) r_e, so that L = |R|^2: one step evaluates R
+and its Jacobian in forward mode, one tangent per parameter, which costs what a forward-mode gradient costs, and
 Gauss-Newton steps need a few iterations where L-BFGS needs tens; measured in
 docs/calibration.md "Speed"), ``lbfgs`` (``optax.lbfgs`` with its zoom line search: a
 quasi-Newton method for any smooth loss, tens of iterations) and ``adam``
@@ -33,8 +33,8 @@ it, to within rtol); that is how a smooth fit ends, in a step or two after the l
 falling.  The ``patience`` test above ends the fits whose loss stalls while the linear model
 still predicts a decrease (the trust region rejects every step: measured on the README's
 example, a twin at h = 0.02 m fitted to data from a twice finer grid, float64, where the
-derivative of the run no longer describes the loss at the step's scale).  One iteration is one step of the solver (one model evaluation, accepted or
-rejected).
+derivative of the run no longer describes the loss at the step's scale).  One iteration is
+one step of the solver (one model evaluation, accepted or rejected).
 """
 
 from __future__ import annotations
@@ -138,15 +138,9 @@ def forward_jacobian(f):
 
 
 def forward_value_and_grad(f):
-    """z -> (f(z), df/dz) in forward mode: ``jax.jvp`` along every unit vector, batched by ``vmap``
-    (the primal is computed once)."""
-
-    def value_and_grad(z):
-        basis = jnp.eye(z.shape[-1], dtype=z.dtype)
-        vals, tans = jax.vmap(lambda t: jax.jvp(f, (z,), (t,)))(basis)
-        return vals[0], tans
-
-    return value_and_grad
+    """z -> (f(z), df/dz) for a scalar f in forward mode: :func:`forward_jacobian`, whose
+    Jacobian of a scalar is its gradient."""
+    return forward_jacobian(f)
 
 
 def forward_mode_gradient(f):
@@ -486,9 +480,11 @@ def fit(
     # start's z, loss and gradient norm after each iteration, so all take the same decisions
     mine = np.arange(n) % jax.process_count() == jax.process_index()
     nan_vg = (np.asarray(np.nan), np.full(len(pset.free), np.nan))
+    # LM's Gauss-Newton prediction of the relative decrease per start (inf: none, other methods)
+    pred = np.full(n, np.inf)
     if lm:
         # LM's first step evaluates R and J at the start (always accepted) and proposes the next point
-        vgs, pred = [nan_vg] * n, np.full(n, np.inf)
+        vgs = [nan_vg] * n
         for k in np.flatnonzero(mine):
             out = jupdate(jnp.asarray(zs[k]), states[k], jnp.asarray(np.nan), jnp.asarray(zs[k]))
             zs[k], states[k], vgs[k], pred[k] = (
@@ -515,11 +511,8 @@ def fit(
                 pred[k] = float(out[4])
         loss = np.array([float(v) for v, _ in vgs])
         gn = np.array([float(np.linalg.norm(g)) for _, g in vgs])
-        if lm:
-            # the convergence inputs travel with the gradient norm: every process decides alike
-            zs, loss, gn, pred = _exchange(mine, zs, loss, gn, pred)
-        else:
-            zs, loss, gn = _exchange(mine, zs, loss, gn)
+        # the convergence inputs travel with the gradient norm: every process decides alike
+        zs, loss, gn, pred = _exchange(mine, zs, loss, gn, pred)
         if not np.all(np.isfinite(loss[running])):
             bad = int(np.flatnonzero(~np.isfinite(loss) & running)[0])
             raise FloatingPointError(
@@ -534,7 +527,7 @@ def fit(
                 running[k], reason[k] = False, "atol"
             elif gn[k] < gtol:
                 running[k], reason[k] = False, "gtol"
-            elif lm and pred[k] <= rtol:
+            elif pred[k] <= rtol:
                 # the full Gauss-Newton step from the last accepted point predicts a relative
                 # decrease <= rtol: no step can lower the loss by more, to first order (the
                 # residual is orthogonal to the Jacobian's columns to within rtol)
