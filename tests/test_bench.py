@@ -30,6 +30,8 @@ def test_top_level_keys_and_meta(doc):
     m = doc["meta"]
     assert m["quick"] is True and m["backend"] and m["jax"] and m["cpus"] >= 1
     assert m["scaling_sizes"] == [1e3] and "1e6" in m["note_1e6"]
+    bw = m["memory_bandwidth"]
+    assert _pos(bw["numpy_add_gb_s"]) and _pos(bw["xla_triad_gb_s"])
 
 
 def test_default_scene_and_mpm88_entries_are_kept(doc):
@@ -54,6 +56,21 @@ def test_scaling_rows_cover_both_dims_and_dtypes(doc):
         assert r["grid_nodes"] > r["n_particles"] / 2 ** r["dim"]
         assert r["n_lost"] == 0
         assert _pos(r["particle_steps_per_s"]) and _pos(r["best_wall_s"]) and r["steps"] >= 5
+
+
+def test_traffic_per_particle_step(doc):
+    """The bytes figures the scaling floor is read from (docs/performance.md, "Scaling")."""
+    for r in list(doc["results"].values()) + doc["scaling"]:
+        fl = 4 if r.get("dtype", "float32") == "float32" else 8
+        dim = r.get("dim", 2)
+        # the state read and written once: x, v (dim each), C, tau (dim^2 each), J, mu read and
+        # written, vol0 read, active and gate 1 byte each way, at least
+        floor = fl * (2 * (2 * dim + 2 * dim * dim + 2) + 1)
+        assert r["state_bytes_per_particle_step"] >= floor
+        # XLA materialises the stencil arrays (S = 3^dim nodes, 2 dim + 1 channels) at least once
+        assert r["xla_bytes_per_particle_step"] > fl * 3**dim * (2 * dim + 1)
+        assert r["xla_gb_s"] == pytest.approx(r["xla_bytes_per_particle_step"] * r["particle_steps_per_s"] / 1e9)
+        assert _pos(r["best_cpu_s"]) and _pos(r["xla_flops_per_particle_step"])
 
 
 def test_gradient_rows(doc):
@@ -86,3 +103,21 @@ def test_bad_steps_is_a_usage_error(tmp_path):
     from mpmjax.cli import main
 
     assert main(["bench", "--steps", "0", "--out", str(tmp_path / "b.json")]) == 2
+
+
+def test_only_runs_the_sections_named(tmp_path):
+    from mpmjax.cli import main
+
+    out = tmp_path / "b.json"
+    assert main(["bench", "--quick", "--only", "batch", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert set(doc) == {"meta", "results", "batch", "complete"} and doc["results"] == {}
+
+
+@pytest.mark.parametrize("argv", [["--only", "scaling,speed"], ["--only", ","], ["--reps", "0"]])
+def test_bad_only_or_reps_is_a_usage_error(tmp_path, argv, capsys):
+    from mpmjax.cli import main
+
+    assert main(["bench", *argv, "--out", str(tmp_path / "b.json")]) == 2
+    err = capsys.readouterr().err
+    assert argv[0] in err and "allowed" in err

@@ -52,22 +52,85 @@ MPM88 = {
 }
 
 
+def _step_traffic(setup) -> dict:
+    """Bytes per particle-step: XLA's count for one compiled step, and the state's own.
+
+    ``xla_bytes_per_particle_step``: ``Compiled.cost_analysis()["bytes accessed"]`` of one jitted
+    step (every HLO op's operands and results, as XLA materialises them between its fusions;
+    cache-oblivious, so an upper bound on the memory traffic), divided by the particle count.
+    ``state_bytes_per_particle_step``: the state read once and written once (every leaf but the
+    constant ``vol0`` written), per particle: the traffic no implementation of this step avoids
+    while the particles do not fit in cache.  The grid is left out of both floors' reasoning: it is
+    read and written through the stencil, in cache while it fits there.
+    """
+    from .._step import make_step
+
+    n = setup.scene.n_particles
+    ca = jax.jit(make_step(setup.scene)).lower(setup.state, setup.params).compile().cost_analysis()
+    ca = ca[0] if isinstance(ca, (list, tuple)) else ca
+    leaves = jax.tree_util.tree_leaves_with_path(setup.state)
+    read = sum(x.nbytes for _, x in leaves)
+    written = sum(x.nbytes for k, x in leaves if "vol0" not in jax.tree_util.keystr(k))
+    xla = float(ca.get("bytes accessed", float("nan"))) if ca else float("nan")
+    return {
+        "xla_bytes_per_particle_step": xla / n,
+        "xla_flops_per_particle_step": float(ca.get("flops", float("nan"))) / n if ca else float("nan"),
+        "state_bytes_per_particle_step": (read + written) / n,
+    }
+
+
+def memory_bandwidth(mib: int = 256, reps: int = 5) -> dict:
+    """The machine's sustained memory bandwidth [GB/s], measured on 3 arrays of ``mib`` MiB each
+    (float32, far beyond any cache), bytes counted as STREAM counts them (2 arrays read, 1 written):
+
+    * ``numpy_add_gb_s``: STREAM's add, ``numpy.add(b, c, out=a)``, one thread: what the memory
+      delivers to one core's plain loop (the figure the traffic floors are read against);
+    * ``xla_triad_gb_s``: STREAM's triad a = b + 3 c as one jitted XLA program (the output buffer
+      donated, so no fresh allocation is timed): what XLA:CPU's own elementwise loops reach.
+
+    Best of ``reps``."""
+    import numpy as np
+
+    n = mib * 2**20 // 4
+    b = np.arange(n, dtype=np.float32)
+    c = np.ones(n, np.float32)
+    a = np.empty_like(b)
+    moved = 3 * n * 4
+    best_n = _timed(lambda: np.add(b, c, out=a), reps=reps)
+    triad = jax.jit(lambda a, b, c: b + 3.0 * c, donate_argnums=0)
+    ja, jb, jc = jax.device_put(a), jax.device_put(b), jax.device_put(c)
+    ja = jax.block_until_ready(triad(ja, jb, jc))
+    best_x = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        ja = jax.block_until_ready(triad(ja, jb, jc))
+        best_x = min(best_x, time.perf_counter() - t0)
+    return {
+        "array_mib": mib,
+        "numpy_add_gb_s": moved / best_n / 1e9,
+        "xla_triad_gb_s": moved / best_x / 1e9,
+    }
+
+
 def _measure(setup, steps: int, reps: int = 3) -> dict:
     t0 = time.perf_counter()
     f = jax.jit(make_chunk(setup.scene, steps)).lower(setup.state, setup.params).compile()
     compile_s = time.perf_counter() - t0
     best = float("inf")
+    best_cpu = float("inf")
     state = setup.state
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         out = f(state, setup.params)
         jax.block_until_ready(out.x)
         best = min(best, time.perf_counter() - t0)
+        best_cpu = min(best_cpu, time.process_time() - c0)
     n = setup.scene.n_particles
-    return {
+    r = {
         "n_particles": n,
         "steps": steps,
         "best_wall_s": best,
+        "best_cpu_s": best_cpu,
         "compile_s": compile_s,
         "particle_steps_per_s": n * steps / best,
         "n_lost": int(out.n_lost),
@@ -75,6 +138,11 @@ def _measure(setup, steps: int, reps: int = 3) -> dict:
         "shape": setup.scene.shape,
         "transfer": setup.scene.transfer,
     }
+    r.update(_step_traffic(setup))
+    # what the XLA program's own traffic moved per second (an upper bound: XLA counts every
+    # intermediate as if it went to memory)
+    r["xla_gb_s"] = r["xla_bytes_per_particle_step"] * r["particle_steps_per_s"] / 1e9
+    return r
 
 
 def _fluid(dim: int, n_target: int, dtype: str):
@@ -246,10 +314,27 @@ def add_arguments(p):
     p.add_argument("--out", default="bench.json", help="JSON file to write")
     p.add_argument("--steps", type=int, default=2000, help="steps per measurement (default scene, mpm88)")
     p.add_argument("--dtype", default="float32", choices=("float32", "float64"), help="default scene, mpm88, grad")
+    p.add_argument("--reps", type=int, default=3, help="timed repetitions per measurement, the best kept")
     p.add_argument("--quick", action="store_true", help="tiny sizes and step counts (tests; not a benchmark)")
     p.add_argument(
         "--large", action="store_true", help="add 1e6 particles to the scaling runs (minutes per point on 2 cores)"
     )
+    p.add_argument(
+        "--only",
+        default=",".join(SECTIONS),
+        help=f"comma-separated sections to run, of {', '.join(SECTIONS)} (default: all)",
+    )
+
+
+SECTIONS = ("scenes", "scaling", "gradient", "batch")
+
+
+def _sections(text: str) -> tuple:
+    got = tuple(t.strip() for t in text.split(",") if t.strip())
+    bad = [t for t in got if t not in SECTIONS]
+    if bad or not got:
+        raise ValueError(f"--only = {text!r} is invalid: allowed sections {', '.join(SECTIONS)} (comma-separated)")
+    return got
 
 
 def _meta(args, quick: bool, large: bool) -> dict:
@@ -285,11 +370,14 @@ def run_bench(args) -> int:
         raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")
     quick = bool(getattr(args, "quick", False))
     large = bool(getattr(args, "large", False))
+    only = _sections(getattr(args, "only", ",".join(SECTIONS)))
 
     def log(*a):
         print(*a, file=sys.stderr, flush=True)
 
-    reps = 1 if quick else 3
+    if args.reps < 1:
+        raise ValueError(f"--reps = {args.reps} is invalid: allowed range >= 1")
+    reps = 1 if quick else args.reps
     steps = min(args.steps, 20) if quick else args.steps
     results = {}
     doc = {"meta": _meta(args, quick, large), "results": results, "complete": False}
@@ -298,59 +386,70 @@ def run_bench(args) -> int:
         # after every section, atomically: an interrupted or killed bench keeps what it measured
         _write_json(args.out, doc)
 
-    cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
-    results["default-scene"] = _measure(build(cfg), steps, reps)
-    raw = json.loads(json.dumps(MPM88))
-    raw["numerics"]["dtype"] = args.dtype
-    setup = build(validate(raw))
-    assert setup.scene.n_particles == 8192
-    results["mpm88-equivalent"] = _measure(setup, steps, reps)
-    for k, r in results.items():
-        log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
-    save()
-    sizes = doc["meta"]["scaling_sizes"]
-    # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
-    combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
-    scaling = doc["scaling"] = []
-
-    def log_row(*a):
-        log(*a)
+    if "scenes" in only or "scaling" in only:
+        # the machine's memory bandwidth, the floor the traffic figures of each row are read against
+        doc["meta"]["memory_bandwidth"] = memory_bandwidth(16 if quick else 256, 1 if quick else 5)
+        log(f"memory bandwidth (STREAM triad): {doc['meta']['memory_bandwidth']}")
+    if "scenes" in only:
+        cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
+        results["default-scene"] = _measure(build(cfg), steps, reps)
+        raw = json.loads(json.dumps(MPM88))
+        raw["numerics"]["dtype"] = args.dtype
+        setup = build(validate(raw))
+        assert setup.scene.n_particles == 8192
+        results["mpm88-equivalent"] = _measure(setup, steps, reps)
+        for k, r in results.items():
+            log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
         save()
+    scaling = []
+    if "scaling" in only:
+        sizes = doc["meta"]["scaling_sizes"]
+        # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
+        combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
+        scaling = doc["scaling"] = []
 
-    bench_scaling(
-        sizes, combos, target=1e4 if quick else 1e7, min_steps=5 if quick else 20, reps=reps, log=log_row, rows=scaling
-    )
-    gsteps = [10] if quick else [100, 400, 1600]
-    gradient = doc["gradient"] = bench_gradient(
-        gsteps, args.dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log
-    )
-    save()
-    batch = doc["batch"] = bench_batch(5 if quick else 400, 16, args.dtype, reps=reps, coarse=quick, log=log)
+        def log_row(*a):
+            log(*a)
+            save()
+
+        # at least 5 steps per timed call: at 1e6 particles the target's 1e7 particle-steps is 10 steps
+        bench_scaling(sizes, combos, target=1e4 if quick else 1e7, min_steps=5, reps=reps, log=log_row, rows=scaling)
+    gradient = []
+    if "gradient" in only:
+        gsteps = [10] if quick else [100, 400, 1600]
+        gradient = doc["gradient"] = bench_gradient(
+            gsteps, args.dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log
+        )
+        save()
+    batch = None
+    if "batch" in only:
+        batch = doc["batch"] = bench_batch(5 if quick else 400, 16, args.dtype, reps=reps, coarse=quick, log=log)
     doc["complete"] = True
     save()
     meta = doc["meta"]
-    print(f"{'configuration':20s} {'particles':>9s} {'steps':>6s} {'compile s':>9s} {'wall s':>8s} {'p-steps/s':>10s}")
-    for k, r in results.items():
+    print(f"{'configuration':20s} {'particles':>9s} {'steps':>6s} {'compile s':>9s} {'wall s':>8s} {'p-steps/s':>10s}"
+          f" {'XLA B/p-step':>12s} {'XLA GB/s':>8s}")
+    rows = [(k, r) for k, r in results.items()] + [(f"fluid {r['dim']}D {r['dtype']}", r) for r in scaling]
+    for k, r in rows:
         print(
             f"{k:20s} {r['n_particles']:9d} {r['steps']:6d} {r['compile_s']:9.2f} {r['best_wall_s']:8.3f} "
-            f"{r['particle_steps_per_s']:10.3g}"
+            f"{r['particle_steps_per_s']:10.3g} {r['xla_bytes_per_particle_step']:12.0f} {r['xla_gb_s']:8.2f}"
         )
-    for r in scaling:
-        k = f"fluid {r['dim']}D {r['dtype']}"
-        print(
-            f"{k:20s} {r['n_particles']:9d} {r['steps']:6d} {r['compile_s']:9.2f} {r['best_wall_s']:8.3f} "
-            f"{r['particle_steps_per_s']:10.3g}"
-        )
+    if "memory_bandwidth" in meta:
+        bw = meta["memory_bandwidth"]
+        print(f"memory bandwidth: {bw['numpy_add_gb_s']:.1f} GB/s (STREAM add, numpy, one thread), "
+              f"{bw['xla_triad_gb_s']:.1f} GB/s (STREAM triad, XLA)")
     for r in gradient:
         print(
             f"grad/forward at {r['steps']} steps: {r['gradient_s']:.3f} / {r['forward_s']:.3f} s = "
             f"{r['gradient_over_forward']:.2f}; XLA temp {_fmt_bytes(r['gradient_memory']['temp_bytes'])} vs "
             f"{_fmt_bytes(r['forward_memory']['temp_bytes'])}"
         )
-    print(
-        f"batch of {batch['batch']} (vmap) vs {batch['batch']} sequential runs, {batch['steps']} steps: "
-        f"{batch['batched_s']:.3f} vs {batch['sequential_s']:.3f} s, sequential/batched = "
-        f"{batch['sequential_over_batched']:.2f}"
-    )
+    if batch is not None:
+        print(
+            f"batch of {batch['batch']} (vmap) vs {batch['batch']} sequential runs, {batch['steps']} steps: "
+            f"{batch['batched_s']:.3f} vs {batch['sequential_s']:.3f} s, sequential/batched = "
+            f"{batch['sequential_over_batched']:.2f}"
+        )
     print(f"({meta['backend']}, {meta['cpus']} cpus, jax {meta['jax']}, {args.dtype}); wrote {args.out}")
     return 0
