@@ -10,6 +10,16 @@ fused program):
 * ``jvp``: the forward-mode step with a tangent on the whole state and on mu0 (as inside a scan,
   where the state's tangent is not zero).
 
+Then the vjp again with parts of the step cut out of the derivative (``jax.lax.stop_gradient``
+patched in for this script only; the gradient is then wrong, the point is what the cut part costs):
+
+* ``no_stencil_x``: the stencil (weights, weight gradients, offsets) taken as constant in x, so no
+  cotangent flows through the particles' positions into the weights of either transfer;
+* ``no_constitutive``: the rheology's outputs, the deviatoric stress and J taken as constant;
+
+and the stencil alone (x -> w, grad w, r) forward and vjp, the part a hand-written stencil adjoint
+would replace.
+
 Nothing is timed; the counts are deterministic for a given jax/XLA version.
 
     .venv/bin/python docs/bench/gradient_opcount.py > docs/bench/gradient_opcount.json
@@ -25,7 +35,9 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from mpmjax import build, load_scene  # noqa: E402
+import dataclasses  # noqa: E402
+
+from mpmjax import _step, _transfer, build, load_scene  # noqa: E402
 from mpmjax._step import make_step  # noqa: E402
 
 
@@ -66,7 +78,69 @@ def main():
             "flops_over_forward": c["flops"] / f["flops"],
             "bytes_over_forward": c["bytes_accessed"] / f["bytes_accessed"],
         }
+    out["vjp_with_parts_cut"] = {}
+    for cut in ("no_stencil_x", "no_constitutive"):
+        with _cut(cut, setup.scene) as scene:
+            step_c = make_step(scene)
+
+            def fwd_c(s, m, step_c=step_c):
+                return step_c(s, pr._replace(material=pr.material._replace(mu0=m)))
+
+            c = counts(lambda s, m, ct_: jax.vjp(fwd_c, s, m)[1](ct_), st, mu0, ct)
+        out["vjp_with_parts_cut"][cut] = {
+            "flops_per_particle_step": c["flops"] / n,
+            "bytes_per_particle_step": c["bytes_accessed"] / n,
+            "flops_saved_per_particle_step": out["vjp"]["flops_per_particle_step"] - c["flops"] / n,
+        }
+
+    def stencil(x):
+        sc = _transfer._Stencil(setup.scene, x)
+        return sc.w, sc.dw, sc.r
+
+    sf = counts(stencil, st.x)
+    sb = counts(lambda x, c: jax.vjp(stencil, x)[1](c), st.x, stencil(st.x))
+    out["stencil_alone"] = {"forward_flops_per_particle": sf["flops"] / n, "vjp_flops_per_particle": sb["flops"] / n}
     print(json.dumps(out, indent=1))
+
+
+class _cut:
+    """Context: the step's module patched so that one part of the step is cut out of the derivative."""
+
+    def __init__(self, what, scene):
+        self.what, self.scene = what, scene
+
+    def __enter__(self):
+        self.saved = (_transfer._Stencil, _step.deviatoric_update)
+        sg = jax.lax.stop_gradient
+        if self.what == "no_stencil_x":
+            orig = _transfer._Stencil
+
+            class Frozen(orig):
+                def __init__(self, scene, x):
+                    super().__init__(scene, sg(x))
+
+            _transfer._Stencil = Frozen
+            return self.scene
+        dev = _step.deviatoric_update
+        _step.deviatoric_update = lambda *a: sg(dev(*a))
+        rheo = self.scene.rheology
+
+        class Frozen:
+            def __getattr__(self, k):
+                return getattr(rheo, k)
+
+            def viscosity(self, *a):
+                return sg(rheo.viscosity(*a))
+
+        # J: cut where the step forms it, through the determinant it is formed from
+        self.saved_det = jnp.linalg.det
+        jnp.linalg.det = lambda a: sg(self.saved_det(a))
+        return dataclasses.replace(self.scene, rheology=Frozen())
+
+    def __exit__(self, *exc):
+        _transfer._Stencil, _step.deviatoric_update = self.saved
+        if hasattr(self, "saved_det"):
+            jnp.linalg.det = self.saved_det
 
 
 if __name__ == "__main__":
