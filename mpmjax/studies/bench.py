@@ -86,7 +86,8 @@ def memory_bandwidth(mib: int = 256, reps: int = 5) -> dict:
     * ``numpy_add_gb_s``: STREAM's add, ``numpy.add(b, c, out=a)``, one thread: what the memory
       delivers to one core's plain loop (the figure the traffic floors are read against);
     * ``xla_triad_gb_s``: STREAM's triad a = b + 3 c as one jitted XLA program (the output buffer
-      donated, so no fresh allocation is timed): what XLA:CPU's own elementwise loops reach.
+      donated, so no fresh allocation is timed) on the default device: what XLA:CPU's own
+      elementwise loops reach, or on a GPU its memory's bandwidth.
 
     Best of ``reps``."""
     import numpy as np
