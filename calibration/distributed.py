@@ -41,6 +41,7 @@ __all__ = [
     "check_join_options",
     "is_writer",
     "join",
+    "local_devices",
     "parse_shard",
     "shard_range",
 ]
@@ -105,6 +106,36 @@ def join(options) -> None:
             f"cannot join the distributed job at {where} as process {options.get('process_id')} of "
             f"{options.get('num_processes')}: {str(e).splitlines()[0] if str(e) else type(e).__name__}"
         ) from None
+
+
+def local_devices(n) -> None:
+    """``mpmjax sweep --devices N``: make this process hold ``n`` devices before JAX starts, so that
+    the sweep's batch is split over them as over the devices of a distributed job (``BatchLayout``).
+
+    On a CPU these are host devices (``jax_num_cpu_devices``), each running its share of the
+    batch on one core: the vmap batch of 16 on 2 cores ran 1.54-2.61x (median 1.67) faster than
+    16 runs in a row this way, against 1.02x on one device (docs/performance.md, "Batch").  On a
+    GPU machine the devices are the GPUs; ``n`` must not exceed them.  ``None`` or 1: nothing.
+    Must come before any JAX computation.  Raises ``DistributedError`` naming ``--devices``, the
+    value and the allowed range."""
+    if n is None or n == 1:
+        return
+    if n < 1:
+        raise DistributedError(f"--devices = {n} is invalid; allowed range: integer >= 1")
+    from jax._src import xla_bridge
+
+    if not xla_bridge.backends_are_initialized() and (jax.config.jax_platforms or "cpu").split(",")[0] == "cpu":
+        try:
+            if jax.config.jax_num_cpu_devices < n:
+                jax.config.update("jax_num_cpu_devices", n)
+        except Exception:  # set by XLA_FLAGS or refused: the count below says what there is
+            pass
+    have = jax.local_device_count()
+    if have < n:
+        raise DistributedError(
+            f"--devices = {n} is invalid here: this process has {have} {jax.devices()[0].platform} device(s) "
+            f"(on a CPU they are made only before JAX starts); allowed range: 1 .. {have}"
+        )
 
 
 def is_writer() -> bool:

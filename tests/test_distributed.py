@@ -1,6 +1,7 @@
 """Sweeps and multi-start fits beyond one process (issue 18 item 5): two local CPU processes
-joined by ``jax.distributed`` (gloo collectives over TCP on 127.0.0.1), the ``--shard I/N``
-parts of a job array and their merge, and the options' errors."""
+joined by ``jax.distributed`` (gloo collectives over TCP on 127.0.0.1), one process with the batch
+split over 2 host devices (``--devices 2``), the ``--shard I/N`` parts of a job array and their
+merge, and the options' errors."""
 
 import json
 import os
@@ -67,6 +68,13 @@ def test_sweep_on_two_processes_equals_one_process(tmp_path):
         )
         for i in range(2)
     ]
+    # and one process that splits the batch over 2 host devices of its own (--devices 2)
+    procs.append(
+        subprocess.Popen(
+            _sweep_cli(tmp_path / "devices", "--devices", "2"),
+            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+    )
     try:
         # meanwhile, in this process: the one-process sweep, and the two shares of a job array
         # (the second and third sweeps reuse the first one's compilation)
@@ -81,11 +89,14 @@ def test_sweep_on_two_processes_equals_one_process(tmp_path):
             if p.poll() is None:
                 p.kill()
                 p.wait()
-    assert [p.returncode for p in procs] == [0, 0], "\n".join(lg[-3000:] for lg in logs)
+    assert [p.returncode for p in procs] == [0, 0, 0], "\n".join(lg[-3000:] for lg in logs)
     dist = json.loads((tmp_path / "dist" / "sweep.json").read_text())
     assert (dist["n_processes"], dist["n_devices"], ref["n_processes"], ref["n_devices"]) == (2, 2, 1, 1)
     assert not (tmp_path / "unused").exists()  # only process 0 writes
     _same(dist, ref)
+    local = json.loads((tmp_path / "devices" / "sweep.json").read_text())
+    assert (local["n_processes"], local["n_devices"]) == (1, 2)
+    _same(local, ref)
     assert (tmp_path / "dist" / "sweep.csv").exists() and (tmp_path / "dist" / "sweep_runout.png").exists()
     merged = merge_parts(tmp_path / "parts")
     assert merged["parts"] == 2 and merged["n_cases"] == 4
@@ -141,6 +152,9 @@ def test_sweep_merge_cli_joins_parts_and_names_missing_ones(tmp_path, capsys):
         (["--coordinator", "h:1234"], "--num-processes, --process-id missing"),
         (["--shard", "2/2"], "--shard = '2/2' is invalid; allowed: I/N with N >= 1 jobs and 0 <= I <= N - 1"),
         (["--shard", "0/2", "--coordinator", "h:1234", "--num-processes", "2", "--process-id", "0"], "--shard and"),
+        (["--devices", "0"], "--devices = 0 is invalid; allowed range: integer >= 1"),
+        # this process has started JAX already: no more host devices can be made, and the message says so
+        (["--devices", "64"], "--devices = 64 is invalid here"),
     ],
 )
 def test_distributed_options_bad_input_exits_2(tmp_path, capsys, extra, needle):
@@ -148,7 +162,7 @@ def test_distributed_options_bad_input_exits_2(tmp_path, capsys, extra, needle):
     the option, its value and the allowed range (on sweep and calibrate alike)."""
     assert main(["sweep", TWIN, "--vary", "mu0=1", "--out", str(tmp_path / "o"), *extra]) == 2
     assert needle in capsys.readouterr().err
-    if "--shard" not in extra:
+    if "--shard" not in extra and "--devices" not in extra:  # calibrate has no --devices: its starts run per process
         data = str(ROOT / "data" / "synthetic_twin_small_profiles.csv")
         assert main(["calibrate", data, "--scene", TWIN, "--fit", "mu0", "--out", str(tmp_path / "c"), *extra]) == 2
         assert needle in capsys.readouterr().err
