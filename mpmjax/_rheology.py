@@ -139,7 +139,7 @@ YIELD_STRESS = Param(
 )  # fmt: skip
 ALPHA_B = Param(
     "alpha_b", "material.alpha_b", "-", "Bi-viscosity ratio below yield.", 100.0, lo=1.0, lo_open=True,
-    bounds=(1.0, 1e6),
+    bounds=(1.1, 1e6),
 )  # fmt: skip
 PAPANASTASIOU_M = Param(
     "m", "material.papanastasiou_m_s", "s", "Papanastasiou regularisation time m.", 100.0, lo=0.0, lo_open=True,
@@ -152,7 +152,7 @@ CONSISTENCY = Param(
 )  # fmt: skip
 FLOW_INDEX = Param(
     "n_hb", "material.flow_index", "-", "Herschel-Bulkley flow index.", 1.0, lo=0.0, lo_open=True, hi=3.0,
-    bounds=(0.05, 5.0),
+    bounds=(0.05, 3.0),
 )  # fmt: skip
 # Coussot (defaults: the thesis's BASE lab case, §4.5 Table 8; mu_max from Annex 2).
 MU0 = Param(
@@ -167,7 +167,7 @@ RESTRUCTURING_TIME = Param(
     "T", "material.T_s", "s", "Coussot restructuring time T.", 0.5, lo=0.0, lo_open=True, bounds=(1e-3, 1e6)
 )
 EXPONENT = Param(
-    "n", "material.n", "-", "Coussot exponent n.", 2.5, lo=0.0, lo_open=True, hi=10.0, bounds=(0.05, 20.0)
+    "n", "material.n", "-", "Coussot exponent n.", 2.5, lo=0.0, lo_open=True, hi=10.0, bounds=(0.05, 10.0)
 )
 LAMBDA0 = Param(
     "lambda0", "material.lambda0", "-", "Coussot initial structure lambda0.", 1.5, lo=0.0, bounds=(1e-4, 1e4)

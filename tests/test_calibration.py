@@ -568,3 +568,18 @@ def test_calibrate_cli_and_python_api_give_the_same_fit(tmp_path):
     np.testing.assert_allclose(doc["loss_history"], r.history[:, 0], rtol=1e-9)
     assert doc["evaluations"] == r.evaluations and r.evaluations["residuals_and_jacobian"] == 3
     assert r.history[-1, 0] < r.history[0, 0] and r.params["mu0"] != 6.0
+
+
+def test_default_bounds_lie_inside_each_parameters_valid_range():
+    """A fit may go anywhere inside its bounds, so the default bounds must be values the scene accepts:
+    each parameter's calibration bounds sit inside the range its declaration validates (one fact,
+    declared once in ``mpmjax.Param``)."""
+    for name, p in m.material_parameters().items():
+        if p.bounds is None:
+            continue
+        lo, hi = p.bounds
+        assert lo < hi, name
+        if p.lo is not None:
+            assert lo > p.lo if p.lo_open else lo >= p.lo, (name, p.bounds, p.lo)
+        if p.hi is not None:
+            assert hi <= p.hi, (name, p.bounds, p.hi)

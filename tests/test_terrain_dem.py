@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import rasterio
 from rasterio.crs import CRS
-from rasterio.transform import from_origin
+from rasterio.transform import Affine
 
 import mpmjax
 from mpmjax import cli
@@ -128,7 +128,7 @@ def test_bilinear_resampling_to_the_cell_size_is_exact_on_a_plane(tmp_path):
         dems.append(tmp_path / "plane.tif")
         with rasterio.open(
             dems[-1], "w", driver="GTiff", width=nc, height=nr, count=1, dtype="float64", crs="EPSG:32719",
-            transform=from_origin(1000.0, 2000.0 + nr * dy, dx, dy),
+            transform=Affine(dx, 0.0, 1000.0, 0.0, -dy, 2000.0 + nr * dy),
         ) as dst:
             dst.write(vals, 1)
     for dem in dems:
@@ -309,7 +309,7 @@ def test_deposit_raster_integrates_to_the_particles_rest_volume(breach_run):
     assert d.sum() * area == pytest.approx(v0.sum(), rel=0.02)
     assert hz["deposit_volume_m3"] == pytest.approx(v0.sum(), rel=1e-5)
     rows, cols = np.indices(d.shape)
-    xm, ym = t * (cols + 0.5, rows + 0.5)
+    xm, ym = t @ (cols + 0.5, rows + 0.5)
     cx, cy = (d * xm).sum() / d.sum(), (d * ym).sum() / d.sum()
     px = np.average(x[:, 0], weights=v0) + X0
     py = np.average(x[:, 1], weights=v0) + Y0
@@ -389,7 +389,7 @@ def test_ascii_rasters_reopen_with_rasterio_with_the_same_transform(tmp_path):
     vals[1, 2] = np.nan
     p = write_raster(tmp_path / "m", vals, 1000.0, 2030.0, 10.0, None, "ascii")
     with rasterio.open(p) as r:
-        assert r.transform == from_origin(1000.0, 2030.0, 10.0, 10.0)
+        assert r.transform == Affine(10.0, 0.0, 1000.0, 0.0, -10.0, 2030.0)
         got = r.read(1, masked=True)
     assert got.mask[1, 2] and np.allclose(got.filled(np.nan)[~np.isnan(vals)], vals[~np.isnan(vals)])
     assert math.isclose(read_raster(p).top, 2030.0)
