@@ -61,11 +61,13 @@ def main():
     def rev(s, m, c):
         return jax.vjp(fwd, s, m)[1](c)
 
+    def one_tangent(x):
+        if jnp.issubdtype(x.dtype, jnp.floating):
+            return jnp.ones_like(x)
+        return np.zeros(x.shape, jax.dtypes.float0)  # integer and boolean leaves carry no tangent
+
     def tan(s, m):
-        ts = jax.tree_util.tree_map(
-            lambda x: jnp.ones_like(x) if jnp.issubdtype(x.dtype, jnp.floating) else np.zeros(x.shape, jax.dtypes.float0),
-            s,
-        )
+        ts = jax.tree_util.tree_map(one_tangent, s)
         return jax.jvp(fwd, (s, m), (ts, jnp.ones_like(m)))
 
     n = setup.scene.n_particles
