@@ -27,6 +27,7 @@ single-process batch to float rounding (tests/test_distributed.py).
 from __future__ import annotations
 
 import math
+import os
 import re
 
 import jax
@@ -41,7 +42,8 @@ __all__ = [
     "check_join_options",
     "is_writer",
     "join",
-    "local_devices",
+    "check_local_devices",
+    "make_local_devices",
     "parse_shard",
     "shard_range",
 ]
@@ -108,33 +110,39 @@ def join(options) -> None:
         ) from None
 
 
-def local_devices(n) -> None:
-    """``mpmjax sweep --devices N``: make this process hold ``n`` devices before JAX starts, so that
-    the sweep's batch is split over them as over the devices of a distributed job (``BatchLayout``).
-
-    On a CPU these are host devices (``jax_num_cpu_devices``), each running its share of the
-    batch on one core: the vmap batch of 16 on 2 cores ran 1.54-2.61x (median 1.67) faster than
-    16 runs in a row this way, against 1.02x on one device (docs/performance.md, "Batch").  On a
-    GPU machine the devices are the GPUs; ``n`` must not exceed them.  ``None`` or 1: nothing.
-    Must come before any JAX computation.  Raises ``DistributedError`` naming ``--devices``, the
-    value and the allowed range."""
+def make_local_devices(n) -> None:
+    """``mpmjax sweep --devices N``, first half: before JAX starts (and before ``join``), ask for ``n``
+    host devices (``jax_num_cpu_devices``), so that on a CPU the sweep's batch is split over them, each
+    running its share on one core, as over the devices of a distributed job (``BatchLayout``: the batch
+    always uses every device the process has).  Measured on 2 cores: ``sweep --devices 2`` 1.4-1.5x
+    faster than ``--devices 1`` (docs/performance.md, "Beyond one machine").  ``None`` or 1: nothing.
+    Raises ``DistributedError`` naming ``--devices``, the value and the allowed range (1 .. the
+    machine's cores)."""
     if n is None or n == 1:
         return
-    if n < 1:
-        raise DistributedError(f"--devices = {n} is invalid; allowed range: integer >= 1")
-    from jax._src import xla_bridge
+    cores = os.cpu_count() or 1
+    if not 1 <= n <= cores:
+        raise DistributedError(
+            f"--devices = {n} is invalid; allowed range: integer 1 .. {cores} (this machine's cores: one "
+            "host device per core)"
+        )
+    try:
+        if jax.config.jax_num_cpu_devices < n:
+            jax.config.update("jax_num_cpu_devices", n)
+    except Exception:  # JAX has started already, or XLA_FLAGS set the count: check_local_devices says
+        pass
 
-    if not xla_bridge.backends_are_initialized() and (jax.config.jax_platforms or "cpu").split(",")[0] == "cpu":
-        try:
-            if jax.config.jax_num_cpu_devices < n:
-                jax.config.update("jax_num_cpu_devices", n)
-        except Exception:  # set by XLA_FLAGS or refused: the count below says what there is
-            pass
+
+def check_local_devices(n) -> None:
+    """``--devices N``, second half, after ``join``: this process must hold at least ``n`` devices.
+    Raises ``DistributedError`` naming ``--devices`` and the count there is."""
+    if n is None or n == 1:
+        return
     have = jax.local_device_count()
     if have < n:
         raise DistributedError(
             f"--devices = {n} is invalid here: this process has {have} {jax.devices()[0].platform} device(s) "
-            f"(on a CPU they are made only before JAX starts); allowed range: 1 .. {have}"
+            f"(host devices are made only before JAX starts); allowed range: 1 .. {have}"
         )
 
 

@@ -32,6 +32,9 @@ def test_top_level_keys_and_meta(doc):
     assert m["scaling_sizes"] == [1e3] and "1e6" in m["note_1e6"]
     bw = m["memory_bandwidth"]
     assert _pos(bw["numpy_add_gb_s"]) and _pos(bw["xla_triad_gb_s"])
+    # the XLA triad reused its donated buffer: no fresh (page-faulting) allocation was timed
+    assert bw["xla_output_donated"] is True
+    assert m["reps"] == 1 and m["only"] == "scenes,scaling,gradient,batch"
 
 
 def test_default_scene_and_mpm88_entries_are_kept(doc):

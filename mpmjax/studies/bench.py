@@ -98,18 +98,24 @@ def memory_bandwidth(mib: int = 256, reps: int = 5) -> dict:
     a = np.empty_like(b)
     moved = 3 * n * 4
     best_n = _timed(lambda: np.add(b, c, out=a), reps=reps)
-    triad = jax.jit(lambda a, b, c: b + 3.0 * c, donate_argnums=0)
+    # keep_unused: without it jit drops the unused ``a`` and the donation never happens, so every call
+    # would allocate (and page-fault) a fresh output array
+    triad = jax.jit(lambda a, b, c: b + 3.0 * c, donate_argnums=0, keep_unused=True)
     ja, jb, jc = jax.device_put(a), jax.device_put(b), jax.device_put(c)
     ja = jax.block_until_ready(triad(ja, jb, jc))
+    donated = not ja.is_deleted()
+    prev = ja
     best_x = float("inf")
     for _ in range(reps):
         t0 = time.perf_counter()
         ja = jax.block_until_ready(triad(ja, jb, jc))
         best_x = min(best_x, time.perf_counter() - t0)
+    donated = donated and prev.is_deleted()  # the buffer passed in was consumed: no fresh allocation was timed
     return {
         "array_mib": mib,
         "numpy_add_gb_s": moved / best_n / 1e9,
         "xla_triad_gb_s": moved / best_x / 1e9,
+        "xla_output_donated": bool(donated),
     }
 
 
@@ -350,6 +356,10 @@ def _meta(args, quick: bool, large: bool) -> dict:
         "devices": [str(d) for d in jax.devices()],
         "dtype": args.dtype,
         "quick": quick,
+        "reps": 1 if quick else args.reps,
+        "steps": args.steps,
+        "only": getattr(args, "only", ",".join(SECTIONS)),
+        "load_avg_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "scaling_sizes": sizes,
         "memory_source": "XLA Compiled.memory_analysis(): temporary buffer bytes of the compiled function",
         "note_1e6": None
@@ -390,7 +400,7 @@ def run_bench(args) -> int:
     if "scenes" in only or "scaling" in only:
         # the machine's memory bandwidth, the floor the traffic figures of each row are read against
         doc["meta"]["memory_bandwidth"] = memory_bandwidth(16 if quick else 256, 1 if quick else 5)
-        log(f"memory bandwidth (STREAM triad): {doc['meta']['memory_bandwidth']}")
+        log(f"memory bandwidth (STREAM add in numpy, triad in XLA): {doc['meta']['memory_bandwidth']}")
     if "scenes" in only:
         cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
         results["default-scene"] = _measure(build(cfg), steps, reps)
