@@ -25,8 +25,10 @@ for a in "0.01 400" "0.005 400" "0.0025 200"; do
   timeout 90 "$py" docs/bench/batch_sizes.py $a 2>&1 | grep '^{' | tee -a "$OUT/batch.jsonl"
 done
 
-timeout 270 bash -c "$(declare -f mj); py='$py'; mj bench --large --out '$OUT/bench_gpu_float32.json'" \
-  > "$OUT/bench.log" 2>&1
+# --only scenes,scaling --reps 2: each row now also compiles one step for XLA's byte and flop counts (the
+# GPU's own bytes per particle-step against its bandwidth, issue 18); gradient and batch are measured above
+timeout 270 bash -c "$(declare -f mj); py='$py'; mj bench --large --only scenes,scaling --reps 2 \
+  --out '$OUT/bench_gpu_float32.json'" > "$OUT/bench.log" 2>&1
 tail -n 30 "$OUT/bench.log"
 
 if ls .whl/taichi-*.whl > /dev/null 2>&1; then
