@@ -4,7 +4,8 @@
 # Every part writes under $OUT as it finishes, so a part cut off by its time limit loses only itself.
 #   1. env.txt          the GPU, driver, python and jax
 #   2. batch.jsonl      vmap batch of 16 against 16 sequential runs (docs/bench/batch_sizes.py)
-#   3. bench_gpu_float32.json / bench.log   `mpmjax bench --large` (1e3-1e6 particles, 2D/3D, f32/f64)
+#   3. bench_gpu_float32.json / bench.log   `mpmjax bench --large` (1e3-1e6 particles, 2D/3D, f32/f64, with
+#                           XLA's bytes and flops per particle-step and the device's STREAM triad)
 #   4. side_by_side.jsonl   Taichi 1.7.4 on CUDA against our mpm88-equivalent (only if .whl/ holds
 #                           the taichi and dill wheels for this python)
 #   5. run_*.json       wall time and summary of `mpmjax run` on dambreak-lab and field-dambreak-3d
@@ -25,9 +26,9 @@ for a in "0.01 400" "0.005 400" "0.0025 200"; do
   timeout 90 "$py" docs/bench/batch_sizes.py $a 2>&1 | grep '^{' | tee -a "$OUT/batch.jsonl"
 done
 
-# --only scenes,scaling --reps 2: each row now also compiles one step for XLA's byte and flop counts (the
-# GPU's own bytes per particle-step against its bandwidth, issue 18); gradient and batch are measured above
-timeout 270 bash -c "$(declare -f mj); py='$py'; mj bench --large --only scenes,scaling --reps 2 \
+# --reps 2 and no batch section (batch_sizes.py above measures it): each row now also compiles one step
+# for XLA's byte and flop counts (the GPU's own bytes per particle-step against its bandwidth, issue 18)
+timeout 270 bash -c "$(declare -f mj); py='$py'; mj bench --large --only scenes,scaling,gradient --reps 2 \
   --out '$OUT/bench_gpu_float32.json'" > "$OUT/bench.log" 2>&1
 tail -n 30 "$OUT/bench.log"
 
