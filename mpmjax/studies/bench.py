@@ -34,10 +34,12 @@ import time
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._build import build
 from .._schema import load_scene, validate
 from .._simulate import make_chunk, simulate
+from .._step import make_step
 
 MPM88 = {
     "name": "mpm88-equivalent",
@@ -63,8 +65,6 @@ def _step_traffic(setup) -> dict:
     while the particles do not fit in cache.  The grid is left out of both floors' reasoning: it is
     read and written through the stencil, in cache while it fits there.
     """
-    from .._step import make_step
-
     n = setup.scene.n_particles
     ca = jax.jit(make_step(setup.scene)).lower(setup.state, setup.params).compile().cost_analysis()
     ca = ca[0] if isinstance(ca, (list, tuple)) else ca
@@ -90,8 +90,6 @@ def memory_bandwidth(mib: int = 256, reps: int = 5) -> dict:
       elementwise loops reach, or on a GPU its memory's bandwidth.
 
     Best of ``reps``."""
-    import numpy as np
-
     n = mib * 2**20 // 4
     b = np.arange(n, dtype=np.float32)
     c = np.ones(n, np.float32)
