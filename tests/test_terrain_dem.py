@@ -309,7 +309,9 @@ def test_deposit_raster_integrates_to_the_particles_rest_volume(breach_run):
     assert d.sum() * area == pytest.approx(v0.sum(), rel=0.02)
     assert hz["deposit_volume_m3"] == pytest.approx(v0.sum(), rel=1e-5)
     rows, cols = np.indices(d.shape)
-    xm, ym = t @ (cols + 0.5, rows + 0.5)
+    # pixel centres through the affine map, written out (affine's own operator changed from * to @ in 3.0)
+    xm = t.c + t.a * (cols + 0.5) + t.b * (rows + 0.5)
+    ym = t.f + t.d * (cols + 0.5) + t.e * (rows + 0.5)
     cx, cy = (d * xm).sum() / d.sum(), (d * ym).sum() / d.sum()
     px = np.average(x[:, 0], weights=v0) + X0
     py = np.average(x[:, 1], weights=v0) + Y0
