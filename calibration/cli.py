@@ -720,7 +720,7 @@ def add_sweep_arguments(p: argparse.ArgumentParser):
         type=int,
         metavar="N",
         help="on a CPU: make N host devices, one per core, and split the batch over them (default 1; on 2 cores "
-        "a sweep of 16 cases ran 1.4-1.5x faster); the batch always uses every device the process has",
+        "a sweep of 16 cases ran 1.3-1.5x faster); the batch always uses every device the process has",
     )
     add_distributed_arguments(p)
     p.add_argument(

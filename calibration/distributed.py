@@ -114,7 +114,7 @@ def make_local_devices(n) -> None:
     """``mpmjax sweep --devices N``, first half: before JAX starts (and before ``join``), ask for ``n``
     host devices (``jax_num_cpu_devices``), so that on a CPU the sweep's batch is split over them, each
     running its share on one core, as over the devices of a distributed job (``BatchLayout``: the batch
-    always uses every device the process has).  Measured on 2 cores: ``sweep --devices 2`` 1.4-1.5x
+    always uses every device the process has).  Measured on 2 cores: ``sweep --devices 2`` 1.3-1.5x
     faster than ``--devices 1`` (docs/performance.md, "Beyond one machine").  ``None`` or 1: nothing.
     Raises ``DistributedError`` naming ``--devices``, the value and the allowed range (1 .. the
     machine's cores)."""
