@@ -9,11 +9,22 @@ XLA's flags are per process, so ``side by side`` here means processes alternated
     for r in 1 2; do for m in seq vmap shard; do
       [ $m = shard ] && export XLA_FLAGS=--xla_force_host_platform_device_count=2 || unset XLA_FLAGS
       .venv/bin/python docs/bench/batch_cpu.py $m 300; done; done >> docs/bench/batch_cpu.jsonl
+
+With a third argument ``profile`` (MODE ``seq`` or ``vmap``) one call is traced with ``jax.profiler``
+instead, and the durations of XLA's thunks (its compiled kernels: fusions, scatters, gathers) are
+summed over both threads, the thread pool's own waits (``ThunkExecutor``, ``Slinky``) left out: the
+work done, which process CPU time is not (waiting threads spin).  One JSON line, the total and the
+largest thunks:
+
+    for m in seq vmap; do .venv/bin/python docs/bench/batch_cpu.py $m 100 profile; done >> docs/bench/batch_profile.jsonl
 """
 
+import collections
+import glob
 import json
 import os
 import sys
+import tempfile
 import time
 
 import jax
@@ -57,7 +68,31 @@ else:
         return f(mu0s)
 
 
+
+
+def profile():
+    """Thunk durations of one traced call, summed by thunk name over XLA's threads (ms)."""
+    with tempfile.TemporaryDirectory() as d:
+        with jax.profiler.trace(d):
+            jax.block_until_ready(run())
+        pd = jax.profiler.ProfileData.from_file(glob.glob(d + "/**/*.xplane.pb", recursive=True)[0])
+        tot = collections.Counter()
+        for plane in pd.planes:
+            for line in plane.lines:
+                if "XLAEigen" in line.name:
+                    for ev in line.events:
+                        if not ev.name.startswith(("ThunkExecutor", "Slinky")):
+                            tot[ev.name] += ev.duration_ns
+    total = sum(tot.values())
+    return {"mode": mode, "runs": 16, "steps": steps, "n_particles": setup.scene.n_particles,
+            "thunk_ms_total": total / 1e6,
+            "largest": [{"thunk": k, "ms": v / 1e6, "pct": 100 * v / total} for k, v in tot.most_common(8)]}
+
+
 jax.block_until_ready(run())
+if len(sys.argv) > 3 and sys.argv[3] == "profile":
+    print(json.dumps(profile()), flush=True)
+    sys.exit(0)
 best = bc = float("inf")
 for _ in range(3):
     t0, c0 = time.perf_counter(), time.process_time()

@@ -84,10 +84,11 @@ def memory_bandwidth(mib: int = 256, reps: int = 5) -> dict:
     (float32, far beyond any cache), bytes counted as STREAM counts them (2 arrays read, 1 written):
 
     * ``numpy_add_gb_s``: STREAM's add, ``numpy.add(b, c, out=a)``, one thread: what the memory
-      delivers to one core's plain loop (the figure the traffic floors are read against);
+      delivers to one core's plain loop;
     * ``xla_triad_gb_s``: STREAM's triad a = b + 3 c as one jitted XLA program (the output buffer
-      donated, so no fresh allocation is timed) on the default device: what XLA:CPU's own
-      elementwise loops reach, or on a GPU its memory's bandwidth.
+      donated, so no fresh allocation is timed) on the default device, with XLA's threads as the step
+      uses them: the figure the traffic floors are read against (docs/performance.md, "Scaling"); on
+      a GPU, its memory's bandwidth.
 
     Best of ``reps``."""
     n = mib * 2**20 // 4
@@ -100,15 +101,13 @@ def memory_bandwidth(mib: int = 256, reps: int = 5) -> dict:
     # would allocate (and page-fault) a fresh output array
     triad = jax.jit(lambda a, b, c: b + 3.0 * c, donate_argnums=0, keep_unused=True)
     ja, jb, jc = jax.device_put(a), jax.device_put(b), jax.device_put(c)
-    ja = jax.block_until_ready(triad(ja, jb, jc))
-    donated = not ja.is_deleted()
-    prev = ja
+    ja = first = jax.block_until_ready(triad(ja, jb, jc))
     best_x = float("inf")
     for _ in range(reps):
         t0 = time.perf_counter()
         ja = jax.block_until_ready(triad(ja, jb, jc))
         best_x = min(best_x, time.perf_counter() - t0)
-    donated = donated and prev.is_deleted()  # the buffer passed in was consumed: no fresh allocation was timed
+    donated = first.is_deleted()  # the buffer passed in was consumed: no fresh allocation was timed
     return {
         "array_mib": mib,
         "numpy_add_gb_s": moved / best_n / 1e9,
