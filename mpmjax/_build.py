@@ -29,6 +29,7 @@ from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
 from ._shard import use_devices
+from ._slab import check as slab_check
 
 
 def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
@@ -415,6 +416,7 @@ def build(cfg: dict) -> Setup:
         grid_density_cap=float(cfg["numerics.grid_density_cap"]),
         volume_averaging=cfg["numerics.volume_averaging"],
         devices=int(cfg["numerics.devices"]),
+        decomposition=cfg["numerics.decomposition"],
         transfer=cfg["numerics.transfer"],
         force=cfg["numerics.force"],
         flip_blend=cfg["numerics.flip_blend"],
@@ -431,6 +433,7 @@ def build(cfg: dict) -> Setup:
         inflow=inflow,
         terrain=terrain,
     )
+    slab_check(scene)
     active = np.arange(len(x)) < n_bodies
     state = init_state(scene, params, x, vol0, np.where(active[:, None], v, 0.0), active=active)
     if inflow is not None and gate is not None and cfg["gate.point_m"] is None:

@@ -170,6 +170,8 @@ class Scene:
       volume_averaging: ``none`` or ``jbar``: the volume increment of each step averaged through
         the grid (F-bar / J-bar against volumetric locking; ``_transfer`` docstring).
       devices: number of devices one run's particles are split over (``_shard``); 1: no sharding.
+      decomposition: with ``devices`` > 1, ``replicated`` (every device holds the whole grid,
+        ``_shard``) or ``slab`` (the grid cut into slabs along x, halos exchanged, ``_slab``).
     """
 
     dim: int
@@ -199,6 +201,7 @@ class Scene:
     grid_density_cap: float = 0.0
     volume_averaging: str = "none"
     devices: int = 1
+    decomposition: str = "replicated"
     force: str = "gradient"
 
     @property

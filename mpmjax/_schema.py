@@ -188,6 +188,17 @@ _HEAD: dict[str, Key] = {
         lo=1,
         hi=1024,
     ),
+    "numerics.decomposition": Key(
+        str,
+        "replicated",
+        "-",
+        "How a run split over numerics.devices > 1 shares the grid: replicated (every device holds the whole grid; "
+        "the grids are summed every step) or slab (the grid cut into slabs along x, one per device, each holding its "
+        "slab plus a halo of 2-3 node planes exchanged with its neighbours; particles move between devices with "
+        "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls. "
+        "Measured: docs/performance.md, \"One simulation across devices\".",
+        choices=("replicated", "slab"),
+    ),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
 }

@@ -41,6 +41,32 @@ from ._schema import SceneError
 AXIS = "particles"
 
 
+class Replicated:
+    """The grid layout of one device, or of a run whose particles are sharded with the grid replicated.
+
+    A step reads the grid only through its layout (``_step.make_step``'s ``grid``; ``_slab.Slab`` is
+    the other one): ``local`` maps global flat node indices to the indices of the grid the device
+    holds (here the same), ``nodes`` gives a static per-node array (``scene.n_nodes`` rows) for that
+    grid, ``reduce`` turns the device's partial grid sums into the whole sums (``psum`` over
+    ``axis``; nothing on one device) and ``total`` a per-device count into the run's.
+    """
+
+    def __init__(self, n_nodes: int, axis: str | None = None):
+        self.n_nodes, self.axis = n_nodes, axis
+
+    def local(self, idx):
+        return idx
+
+    def nodes(self, a, dtype=None):
+        return jnp.asarray(a, dtype)
+
+    def reduce(self, grid):
+        return grid if self.axis is None else jax.lax.psum(grid, self.axis)
+
+    def total(self, x):
+        return x if self.axis is None else jax.lax.psum(x, self.axis)
+
+
 def use_devices(n: int, make: bool = True) -> list:
     """The first ``n`` devices of the default backend.
 

@@ -37,6 +37,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._scene import Params, Scene, State
+from ._shard import AXIS
+from ._slab import make_slab_advance
 from ._step import make_step
 
 
@@ -61,8 +63,10 @@ def frame_of(state: State) -> Frame:
 def make_chunk(scene: Scene, n_steps: int | None = None):
     """``chunk(state, params) -> state``: ``n_steps`` (default steps_per_frame) steps by
     ``lax.scan``, wrapped in ``jax.checkpoint``."""
-    step = make_step(scene)
     length = scene.steps_per_frame if n_steps is None else n_steps
+    if scene.devices > 1 and scene.decomposition == "slab":  # slabs migrate particles between steps: _slab's own scan
+        return jax.checkpoint(make_slab_advance(scene, make_step(scene, AXIS), length))
+    step = make_step(scene)
 
     def chunk(state, params):
         def body(s, _):

@@ -49,7 +49,8 @@ from ._boundary import (
 )
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._scene import Params, Scene, State
-from ._shard import AXIS, shard_particles
+from ._shard import AXIS, Replicated, shard_particles
+from ._slab import make_slab_advance
 from ._transfer import make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
@@ -60,11 +61,15 @@ def make_step(scene: Scene, axis: str | None = None):
     """Build the pure step function ``step(state, params) -> state`` for ``scene``.
 
     With ``scene.devices`` > 1 the step runs sharded over particles on that many devices
-    (``_shard``).  ``axis``: the mesh axis name when this step is the per-device body of
-    ``shard_map`` (``_shard.shard_particles``): the grid sums and the lost count are then
-    reduced across it.
+    (``_shard``; with ``numerics.decomposition = "slab"``, ``_slab``).  ``axis``: the mesh axis
+    name when this step is the per-device body of ``shard_map``: the grid sums and the lost count
+    are then reduced across it.  The per-device body takes a third argument, ``grid``: the layout
+    of the grid the device holds (default ``_shard.Replicated``; ``_slab.Slab`` for a slab of it),
+    through which every grid sum, nodal index and static per-node array goes.
     """
     if scene.devices > 1 and axis is None:
+        if scene.decomposition == "slab":
+            return make_slab_advance(scene, make_step(scene, AXIS), 1)
         return shard_particles(make_step(scene, AXIS), scene.devices)
     dim, dt = scene.dim, scene.dt
     walls = _wall_masks(scene)
@@ -96,10 +101,13 @@ def make_step(scene: Scene, axis: str | None = None):
 
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
 
-    def step(state: State, params: Params) -> State:
+    whole = Replicated(scene.n_nodes, axis)
+
+    def step(state: State, params: Params, grid=None) -> State:
+        grid = whole if grid is None else grid
         dtp = state.x.dtype
         state = release(state, params)
-        mass, mom, force, st = p2g(state, params)
+        mass, mom, force, st = p2g(state, params, grid)
         # float32 only: a node holding less than EMPTY_NODE_FRACTION (1e-9) of a full cell's mass
         # counts as empty.  GIMP/B-spline tails give edge nodes masses down to ~1e-20 kg; there
         # d(1/m)/dm = -1/m^2 overflows float32 and the reverse pass turns inf * 0 into NaN.  Such
@@ -116,16 +124,17 @@ def make_step(scene: Scene, axis: str | None = None):
         v_new = jnp.where(has[:, None], v_old + dt * accel, 0.0)
         for i, (mask, nrm, wall) in enumerate(walls):
             if i in slip_nb:  # the first interior nodes as the walls before this one left them
-                v_wall = navier_slip(v_new, nrm, v_new[slip_nb[i]], wall.slip_length / scene.h)
+                inner = grid.local(grid.nodes(slip_nb[i]))
+                v_wall = navier_slip(v_new, nrm, v_new[inner], wall.slip_length / scene.h)
             else:
                 v_wall = apply_wall(v_new, nrm, wall.kind)
-            v_new = jnp.where(jnp.asarray(mask)[:, None], v_wall, v_new)
+            v_new = jnp.where(grid.nodes(mask)[:, None], v_wall, v_new)
         if terrain is not None:
-            v_new = jnp.where(jnp.asarray(t_mask)[:, None], terrain_velocity(v_new, t_nrm, terrain), v_new)
+            v_new = jnp.where(grid.nodes(t_mask)[:, None], terrain_velocity(v_new, grid.nodes(t_nrm), terrain), v_new)
         if pipe is not None:
             on = (state.t >= inf.t_start) & (state.t < inf.t_stop)
             v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
-            v_new = jnp.where(jnp.asarray(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
+            v_new = jnp.where(grid.nodes(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
 
         # G2P
         v_pic, v_p, C, L = g2p(st, v_new, v_old, state.v)
@@ -158,7 +167,7 @@ def make_step(scene: Scene, axis: str | None = None):
             # s (I + dt L), s = ((1 + dbar)/(1 + delta))^(1/dim), so det(I + dt L) = 1 + dbar.
             delta = volume_increment(L, dt)
             mass_p = params.material.rho * state.vol0 * state.active
-            dbar = volume_average(scene, st, mass_p, delta[:, None], inv_m, has, axis)[:, 0]
+            dbar = volume_average(scene, st, mass_p, delta[:, None], inv_m, has, grid)[:, 0]
             pos = (delta > -1.0) & (dbar > -1.0)
             ln_s = jnp.where(pos, jnp.log1p(jnp.where(pos, dbar, 0.0)) - jnp.log1p(jnp.where(pos, delta, 0.0)), 0.0)
             s_1 = jnp.expm1(ln_s / dim)[:, None, None]  # s - 1, accurate for s near 1
@@ -172,7 +181,7 @@ def make_step(scene: Scene, axis: str | None = None):
             # full domain would give there, so walls do not count as gaps).  A particle whose J says
             # it is less dense than that by more than the cap gets J = (1 + cap) / phi, so its
             # pressure sees gaps closed between particles that no velocity gradient registered.
-            phi_p = packing_fraction(scene, mass, st, params.material.rho, fill)
+            phi_p = packing_fraction(scene, mass, st, params.material.rho, grid.nodes(fill, dtp))
             J = jnp.minimum(J, (1.0 + cap) / jnp.maximum(phi_p, 1e-6))
         dprime, dd = shear_measures(L, dim)
         shear = shear_rate(dd, scene.shear_measure)
@@ -191,9 +200,7 @@ def make_step(scene: Scene, axis: str | None = None):
         finite = jnp.all(jnp.isfinite(x), axis=1) & jnp.all(jnp.isfinite(v_p), axis=1) & jnp.isfinite(J) & (J > 0)
         ok = inside & finite
         lost_now = state.active & ~ok
-        n_lost_now = jnp.sum(lost_now).astype(jnp.int32)
-        if axis is not None:
-            n_lost_now = jax.lax.psum(n_lost_now, axis)
+        n_lost_now = grid.total(jnp.sum(lost_now).astype(jnp.int32))
         active = state.active & ok
 
         def keep(new, old):

@@ -60,6 +60,7 @@ import numpy as np
 from . import _shapes
 from ._constitutive import tait_pressure
 from ._scene import Params, Scene, State, box_wall_nodes
+from ._shard import Replicated
 
 
 # Small fixed-size contractions written as broadcast-multiply-sum: XLA:CPU lowers batched
@@ -133,6 +134,19 @@ class _Stencil:
         self.S = S
 
 
+def first_plane(scene: Scene, x):
+    """The first node plane along x (axis 0) of each particle's stencil (int32, (n,)), as
+    ``_Stencil`` numbers it: the x index of its first node (the slab decomposition, ``_slab``,
+    keeps a particle on the device whose slab holds it).  Not for a periodic x axis."""
+    xi = (x[:, :1] - jnp.asarray(scene.grid_origin[:1], x.dtype)[None, :]) / scene.h
+    if scene.shape in _shapes.BOUNDARY_MODIFIED:
+        wlo, whi = box_wall_nodes(scene)
+        base = _shapes.boundary_modified_1d(scene.shape, xi, scene.h, wlo[None, :1], whi[None, :1])[0]
+    else:
+        base = _shapes.weights_1d(scene.shape, xi, scene.h, scene.lp_cells)[0]
+    return jnp.clip(base[:, 0], 0, scene.grid_shape[0] - 1)
+
+
 def scatter_add(idx, vals, n_nodes: int):
     """The reference scatter: grid (n_nodes, C) with grid[idx[p, s]] += vals[p, s] (XLA's scatter-add).
 
@@ -145,11 +159,13 @@ def scatter_add(idx, vals, n_nodes: int):
 
 
 def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
-    """Returns ``p2g(state, params) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``;
+    """Returns ``p2g(state, params, grid=None) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``;
     with ``scene.force == "mls"`` the force is None (the stress impulse is in the momentum).
 
-    ``axis``: inside ``shard_map`` over particles (``_shard``), the mesh axis name over which
-    each device's partial grid is summed (``psum``), so every device gets the whole grid.
+    ``grid``: the layout of the grid this device holds (``_shard.Replicated``, ``_slab.Slab``); the
+    stencil's indices are made local to it and the partial sums reduced by it, so N is its node
+    count.  Default: the whole grid, reduced over ``axis`` when given (inside ``shard_map`` over
+    particles, ``_shard``, each device's partial grid is summed by ``psum``).
     ``scatter(idx, vals, n_nodes) -> grid``: the scatter-add (default ``scatter_add``).
     """
     dim = scene.dim
@@ -160,9 +176,13 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
     if mls:
         inv_d = 1.0 / (_shapes.APIC_D_FACTOR[scene.shape] * scene.h**2)
 
-    def p2g(state: State, params: Params):
+    whole = Replicated(scene.n_nodes, axis)
+
+    def p2g(state: State, params: Params, grid=None):
+        grid = whole if grid is None else grid
         mat = params.material
         st = _Stencil(scene, state.x)
+        st.idx = grid.local(st.idx)
         mass_p = mat.rho * state.vol0 * state.active
         vol = state.vol0 * state.J * state.active
         p = tait_pressure(state.J, mat.kappa)
@@ -180,10 +200,8 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
         else:
             force = -vol[:, None, None] * _bmv(sigma, st.dw)
             chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
-        grid = scatter(st.idx, chans, scene.n_nodes)
-        if axis is not None:
-            grid = jax.lax.psum(grid, axis)
-        return grid[:, 0], grid[:, 1 : 1 + dim], (None if mls else grid[:, 1 + dim :]), st
+        g = grid.reduce(scatter(st.idx, chans, grid.n_nodes))
+        return g[:, 0], g[:, 1 : 1 + dim], (None if mls else g[:, 1 + dim :]), st
 
     return p2g
 
@@ -262,19 +280,18 @@ def volume_increment(L, dt):
     return tr + minors + jnp.linalg.det(A)
 
 
-def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has, axis: str | None = None):
+def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has, grid=None):
     """The mass-weighted average through the grid of the particle fields ``q`` (n, k) (J-bar).
 
     ``st`` the stencil of the step's P2G, ``mass_p`` (n,) the particle masses (0 when inactive),
     ``inv_m`` (N,) 1/m_i on the nodes that hold mass and 0 elsewhere, ``has`` (N,) bool those
     nodes.  Nodal q_i = sum_p w_ip m_p q_p / m_i; at the particle
     sum_i w_ip q_i / sum_{i: has} w_ip (the module docstring).  A particle none of whose
-    nodes holds mass keeps its own q.  ``axis``: as for ``make_p2g``, the nodal sums are reduced
-    over that mesh axis.
+    nodes holds mass keeps its own q.  ``grid``: the layout of ``make_p2g`` that made ``st``
+    (default: the whole grid on one device); the nodal sums are reduced by it.
     """
-    num = scatter_add(st.idx, (mass_p[:, None] * st.w)[:, :, None] * q[:, None, :], scene.n_nodes)
-    if axis is not None:
-        num = jax.lax.psum(num, axis)
+    grid = Replicated(scene.n_nodes) if grid is None else grid
+    num = grid.reduce(scatter_add(st.idx, (mass_p[:, None] * st.w)[:, :, None] * q[:, None, :], grid.n_nodes))
     q_node = num * inv_m[:, None]
     wsum = jnp.sum(st.w * has[st.idx].astype(q.dtype), axis=1)
     ok = wsum > 0.0
