@@ -417,6 +417,7 @@ def build(cfg: dict) -> Setup:
         volume_averaging=cfg["numerics.volume_averaging"],
         devices=int(cfg["numerics.devices"]),
         decomposition=cfg["numerics.decomposition"],
+        slab_capacity=float(cfg["numerics.slab_capacity"]),
         transfer=cfg["numerics.transfer"],
         force=cfg["numerics.force"],
         flip_blend=cfg["numerics.flip_blend"],

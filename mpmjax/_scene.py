@@ -172,6 +172,7 @@ class Scene:
       devices: number of devices one run's particles are split over (``_shard``); 1: no sharding.
       decomposition: with ``devices`` > 1, ``replicated`` (every device holds the whole grid,
         ``_shard``) or ``slab`` (the grid cut into slabs along x, halos exchanged, ``_slab``).
+      slab_capacity: with ``slab``, particle slots per device relative to an even share.
     """
 
     dim: int
@@ -202,6 +203,7 @@ class Scene:
     volume_averaging: str = "none"
     devices: int = 1
     decomposition: str = "replicated"
+    slab_capacity: float = 1.5
     force: str = "gradient"
 
     @property

@@ -181,9 +181,9 @@ _HEAD: dict[str, Key] = {
         int,
         1,
         "-",
-        "Devices one run is split over (mpmjax run --devices): the particles are divided among them, each device "
-        "holds the whole grid and the devices' grids are summed every step (an all-reduce). On a CPU these are host "
-        "devices, one per core. Same results as one device to float rounding. Not with a pipe inflow yet. "
+        "Devices one run is split over (mpmjax run --devices): the particles are divided among them, and the grid is "
+        "shared as numerics.decomposition says. On a CPU these are host devices, one per core. Same results as one "
+        "device to float rounding. Not with a pipe inflow yet. "
         "Measured speed-up: docs/performance.md, \"One simulation across devices\".",
         lo=1,
         hi=1024,
@@ -198,6 +198,16 @@ _HEAD: dict[str, Key] = {
         "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls. "
         "Measured: docs/performance.md, \"One simulation across devices\".",
         choices=("replicated", "slab"),
+    ),
+    "numerics.slab_capacity": Key(
+        float,
+        1.5,
+        "-",
+        "Particle slots per device with numerics.decomposition = slab, as a multiple of an even share (particles / "
+        "devices): room for particles that crowd into one slab between rebalancings. A particle that finds no slot "
+        "is dropped and counted as lost (summary.json n_lost). Each step costs in proportion to the slots.",
+        lo=1.0,
+        hi=1024.0,
     ),
     "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
     "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),

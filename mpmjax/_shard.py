@@ -6,8 +6,9 @@ grid: it scatters its own particles into a grid of its own, the N partial grids 
 across devices (``psum``, an all-reduce; ``_transfer.make_p2g``'s ``axis``), and the grid
 update and the G2P gather then run on every device with the reduced grid and its own
 particles.  This is the pattern of CB-Geo MPM's first MPI version (particles decomposed, the
-grid replicated and reduced); a slab decomposition with halo exchange, for grids too large to
-replicate, is the later stage of issue 18 item 4.
+grid replicated and reduced).  ``numerics.decomposition = "slab"`` cuts the grid into slabs
+instead, with halo exchange (``_slab``); both read the grid through a layout object
+(``Replicated`` here, ``_slab.Slab``).
 
 What crosses devices per step: the P2G grid (n_nodes x (1 + 2 dim) numbers), the J-bar
 average's grid with ``numerics.volume_averaging = "jbar"``, and the count of particles lost

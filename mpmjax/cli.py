@@ -144,7 +144,8 @@ def main(argv=None) -> int:
         "--devices",
         type=int,
         metavar="N",
-        help="split the run's particles over N devices (numerics.devices; on a CPU: N host devices, one per core)",
+        help="split the run's particles over N devices (numerics.devices; on a CPU: N host devices, one per core); "
+        "the grid is replicated, or cut into slabs with --set numerics.decomposition=slab",
     )
     pr.add_argument("--quiet", action="store_true", help="no progress output")
     pr.add_argument(

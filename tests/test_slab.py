@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #   "crossed" counts them (the device they sit on under the first edges, at the start and at the end);
 # * "jbar": the J-bar volume averaging (a second grid sum through the halo) with the
 #   boundary-modified quadratic B-spline (box-wall index arithmetic in the stencil);
-# * "starved": CAPACITY 0.8, so 2 devices have slots for 2 x 160 = 320 of the 399: the rest are
+# * "starved": slab_capacity 0.8, so 2 devices have slots for 2 x 160 = 320 of the 399: the rest are
 #   dropped at the first rebalancing, which the lost count must say.
 # And d(mean x)/d mu0 by reverse mode after 40 steps, slabs against one device.
 _CODE = """
@@ -69,13 +69,12 @@ setup = build(load_scene("dambreak-lab", ov + ["numerics.volume_averaging=jbar",
 sc, p, s0 = setup.scene, setup.params, cut(setup)
 one, two = pair(sc, s0, p, sc.n_steps)
 out["jbar"] = diff(one, two, s0)
-_slab.CAPACITY = 0.8
 setup = build(load_scene("dambreak-lab", ov))
-sc, p, s0 = setup.scene, setup.params, cut(setup)
+sc, p, s0 = setup.scene.replace(slab_capacity=0.8), setup.params, cut(setup)  # below the key's range: a direct test
 one, two = pair(sc, s0, p, 40)
 out["starved"] = diff(one, two, s0)
 out["starved"]["capacity"] = _slab.geometry(sc, out["n"]).capacity
-_slab.CAPACITY = 1.5
+sc = sc.replace(slab_capacity=1.5)
 grads = {}
 for d in (1, 2):
     def loss(mu0):
@@ -128,7 +127,7 @@ def test_particles_migrate_between_slabs(two_device_run):
 
 
 def test_a_device_out_of_slots_counts_the_particles_it_drops(two_device_run):
-    """With slots for 2 x 160 = 320 of 399 particles (CAPACITY 0.8), the 79 that do not fit at the
+    """With slots for 2 x 160 = 320 of 399 particles (slab_capacity 0.8), the 79 that do not fit at the
     first dealing are dropped, inactive, and counted in n_lost: the run reports them rather than
     carrying wrong physics on.  (Later steps lose no more: the survivors fit.)"""
     c = two_device_run["starved"]
