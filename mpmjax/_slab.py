@@ -16,10 +16,12 @@ reads the grid through, ``_step.make_step``'s ``grid``):
    per-node arrays, such as wall masks, terrain normals and the wall packing, are cut to the window);
 4. migration (``_migrate``): the particles whose first plane left the slab (at most one slab per
    step: the CFL limit keeps a step under one cell, and a slab is at least two planes wide) are
-   sent to that neighbour (``ppermute``), which puts them into free slots.
+   packed into a buffer of ``SEND`` x the slots (one int32 array, one ``ppermute`` per direction)
+   and sent to that neighbour, which puts them into free slots.
 
-What crosses devices per step: 2 x ``STENCIL - 1`` node planes per grid sum and the particles that
-change slab, where the replicated layout (``_shard``) all-reduces the whole grid.
+What crosses devices per step: 2 x ``STENCIL - 1`` node planes per grid sum and the migration
+buffers, where the replicated layout (``_shard``) all-reduces the whole grid; 5 collectives per
+step (7 with J-bar) against 2 (3): the lost count's sum over devices is the step's own.
 
 Layout and balance.  Each device has ``capacity`` particle slots, ``numerics.slab_capacity``
 (``scene.slab_capacity``) times an even share;
@@ -34,10 +36,16 @@ the grid sums add the same terms in another order (tests/test_slab.py).
 Limits, checked when the scene is built (``check``): no periodic x axis (the halo ring is not
 built), no Navier slip on a wall whose normal is along x (its nodes read a neighbour plane that
 may sit on another device), and at least ``W_MIN`` planes per device.  A device whose slots run
-out (more particles crowd into its slab between rebalancings than its slots hold) drops the
-particles that do not fit: they are counted in ``n_lost`` and keep their state from the last
-rebalancing, inactive, so the run reports them rather than carrying them on silently.  Pipe
-inflow is refused for every multi-device run (``_schema``).
+out (more particles crowd into its slab between rebalancings than its slots hold), or a
+migration buffer that overflows, drops the particles that do not fit: they are counted in
+``n_lost`` and keep their state from the last rebalancing, inactive, so the run reports them
+rather than carrying them on silently (a particle that jumps more than one slab in a step is
+made inactive and counted too).  Pipe inflow is refused for every multi-device run (``_schema``).
+
+Memory: a device's window is ``min(nx, ceil(WIDTH nx / N)) + STENCIL - 1`` planes, so on 2 devices
+it is the whole grid (plus the halo) and the grid memory per device falls only from 3 devices on
+(N = 4: about half the grid).  The price of the balance by particle count is that a slab may
+be as wide as the window allows.
 """
 
 from __future__ import annotations
