@@ -3,9 +3,9 @@
 ``numerics.decomposition = "slab"`` with ``numerics.devices = N > 1`` (``mpmjax run --devices N``):
 the grid's node planes along x (axis 0) are cut into N slabs, one per device, and each particle
 lives on the device whose slab holds the first node plane of its stencil
-(``_transfer.first_plane``).  A device holds only a window of the grid: its slab's planes plus a
-halo of ``STENCIL - 1`` planes beyond its right edge (its particles' stencils reach that far),
-at most ``WIDTH`` times an even share of the planes.  Per step (``Slab``, the grid layout the step
+(``_transfer.first_plane``).  A device holds a window of the grid from its slab's first plane:
+room for its slab's planes plus a halo of ``STENCIL - 1`` planes beyond its right edge (its
+particles' stencils reach that far).  Per step (``Slab``, the grid layout the step
 reads the grid through, ``_step.make_step``'s ``grid``):
 
 1. P2G into the device's window;
@@ -28,7 +28,7 @@ Layout and balance.  Each device has ``capacity`` particle slots, ``numerics.sla
 an empty slot is an inactive particle (no mass, so it adds exact zeros to the grid).  Every
 ``REBALANCE_STEPS`` steps (and at the start of every call) the particles are gathered into the
 State's own order and dealt out again (``_distribute``, ``_collect``): the slab edges are re-chosen
-so that each slab holds about as many particles as the others (within the window's width limit),
+so that each slab holds about as many active particles as the others,
 and each particle's place in the State is kept by its index (``ids``), so frames, calibration and
 ``--resume`` see the same State as on one device.  Results equal one device's to float rounding:
 the grid sums add the same terms in another order (tests/test_slab.py).
@@ -42,10 +42,13 @@ migration buffer that overflows, drops the particles that do not fit: they are c
 rather than carrying them on silently (a particle that jumps more than one slab in a step is
 made inactive and counted too).  Pipe inflow is refused for every multi-device run (``_schema``).
 
-Memory: a device's window is ``min(nx, ceil(WIDTH nx / N)) + STENCIL - 1`` planes, so on 2 devices
-it is the whole grid (plus the halo) and the grid memory per device falls only from 3 devices on
-(N = 4: about half the grid).  The price of the balance by particle count is that a slab may
-be as wide as the window allows.
+Memory: a slab may be as wide as the grid less the other slabs' fewest planes (where the material
+sits in a narrow band of x the slabs beyond it take the empty rest), so a device's window is
+``nx - (N - 1) W_MIN + STENCIL - 1`` planes: about the whole grid.  Slabs replace the all-reduce of
+the whole grid by halo exchange; they do not cut the grid memory per device.  A window bounded
+below the grid would need slab edges that respect it, and then a dense band of material falls
+on few devices and overflows their slots (measured with windows of 2 nx / N planes: dambreak-lab
+on 3 and 4 devices lost a third of its particles at the default slots).
 """
 
 from __future__ import annotations
@@ -64,8 +67,6 @@ from ._schema import SceneError
 from ._shard import AXIS, particle_mesh
 from ._transfer import first_plane
 
-# grid planes a device holds (its slab plus halo), relative to an even share of the planes (at most all)
-WIDTH = 2.0
 # the fewest planes a slab may have: two, so that a particle moving less than a cell per step
 # crosses at most one slab edge, and no fewer than the halo, which must lie on one neighbour
 W_MIN = 2
@@ -98,7 +99,9 @@ def geometry(scene: Scene, n_particles: int) -> Geometry:
     sx = int(np.prod(scene.grid_shape[1:]))
     halo = _shapes.STENCIL[scene.shape] - 1
     w_min = max(W_MIN, halo)
-    w_max = min(nx, math.ceil(WIDTH * nx / n_dev))
+    # a slab may be as wide as the others' fewest planes leave it: the edges balance particles, and
+    # where the material sits in a narrow band of x the slabs beyond it must take the empty rest
+    w_max = nx - (n_dev - 1) * w_min
     cap = min(n_particles, math.ceil(scene.slab_capacity * n_particles / n_dev))
     send = min(cap, max(SEND_MIN, math.ceil(SEND * cap)))
     return Geometry(n_dev, nx, sx, halo, w_min, w_max, w_max + halo, cap, send)
@@ -183,7 +186,8 @@ def _edges(geo: Geometry, planes, weight):
     total = cum[-1]
     b = [jnp.int32(0)]
     for d in range(1, n):
-        target = jnp.searchsorted(cum, (total * d) // n, side="left").astype(jnp.int32) + 1
+        share = (total // n) * d + ((total % n) * d) // n  # total * d // n without int32 overflow
+        target = jnp.searchsorted(cum, share, side="left").astype(jnp.int32) + 1
         lo = jnp.maximum(b[-1] + geo.w_min, nx - (n - d) * geo.w_max)
         hi = jnp.minimum(b[-1] + geo.w_max, nx - (n - d) * geo.w_min)
         b.append(jnp.clip(target, lo, hi))
@@ -196,9 +200,11 @@ def _distribute(scene: Scene, geo: Geometry, state: State):
     n = state.x.shape[0]
     C, N = geo.capacity, geo.n_dev
     planes = first_plane(scene, state.x)
-    b = _edges(geo, planes, jnp.ones(n, jnp.int32))
+    b = _edges(geo, planes, state.active.astype(jnp.int32))  # balance the particles that move
     dev = jnp.sum(planes[:, None] >= b[None, 1:N], axis=1).astype(jnp.int32)
-    order = jnp.argsort(dev, stable=True)
+    # by device, and within a device the active particles first: an inactive one (lost) gets a slot
+    # only where one is left
+    order = jnp.lexsort((~state.active, dev))
     dev_s = dev[order]
     start = jnp.searchsorted(dev_s, jnp.arange(N, dtype=jnp.int32), side="left")
     rank = jnp.arange(n, dtype=jnp.int32) - start[dev_s]
@@ -234,34 +240,33 @@ def _nth_true(mask, size: int):
 
 
 def _rows(tree):
-    """The leaves of a per-particle pytree (leading axis n) as one int32 array (n, K), bit for bit
-    (floats bitcast, bools widened), so that a migration sends one buffer, not one per leaf: each
-    collective costs a rendezvous of the devices (measured on XLA:CPU: ~50 us)."""
-    cols = []
+    """The leaves of a per-particle pytree (leading axis n) as two arrays, floats (n, K) in their
+    own dtype and integers (n, L) in int32 (bools widened), so that a migration sends two buffers,
+    not one per leaf: each collective costs a rendezvous of the devices (measured on XLA:CPU: 50-130
+    us).  The floats stay floats so that derivatives pass through (a bitcast has none)."""
+    fl, il = [], []
     for a in jax.tree_util.tree_leaves(tree):
-        if a.dtype == jnp.bool_:
-            a = a.astype(jnp.int32)
-        elif a.dtype != jnp.int32:
-            a = jax.lax.bitcast_convert_type(a, jnp.int32)
-        cols.append(a.reshape(a.shape[0], -1))
-    return jnp.concatenate(cols, axis=1)
-
-
-def _unrows(buf, like):
-    """Inverse of ``_rows``: ``buf`` (m, K) back into a pytree shaped as ``like`` with m rows."""
-    leaves, tdef = jax.tree_util.tree_flatten(like)
-    out, k = [], 0
-    m = buf.shape[0]
-    for a in leaves:
-        if a.dtype == jnp.bool_ or a.dtype == jnp.int32:
-            w = int(np.prod(a.shape[1:], dtype=int))
-            out.append(buf[:, k : k + w].reshape((m,) + a.shape[1:]).astype(a.dtype))
+        a2 = a.reshape(a.shape[0], -1)
+        if jnp.issubdtype(a.dtype, jnp.floating):
+            fl.append(a2)
         else:
-            per = a.dtype.itemsize // 4
-            w = int(np.prod(a.shape[1:], dtype=int)) * per
-            c = buf[:, k : k + w].reshape((m,) + a.shape[1:] + ((per,) if per > 1 else ()))
-            out.append(jax.lax.bitcast_convert_type(c, a.dtype))
-        k += w
+            il.append(a2.astype(jnp.int32))
+    return jnp.concatenate(fl, axis=1), jnp.concatenate(il, axis=1)
+
+
+def _unrows(fbuf, ibuf, like):
+    """Inverse of ``_rows``: the two buffers (m rows) back into a pytree shaped as ``like``."""
+    leaves, tdef = jax.tree_util.tree_flatten(like)
+    out, kf, ki = [], 0, 0
+    m = fbuf.shape[0]
+    for a in leaves:
+        w = int(np.prod(a.shape[1:], dtype=int))
+        if jnp.issubdtype(a.dtype, jnp.floating):
+            out.append(fbuf[:, kf : kf + w].reshape((m,) + a.shape[1:]))
+            kf += w
+        else:
+            out.append(ibuf[:, ki : ki + w].reshape((m,) + a.shape[1:]).astype(a.dtype))
+            ki += w
     return jax.tree_util.tree_unflatten(tdef, out)
 
 
@@ -283,11 +288,13 @@ def _migrate(scene: Scene, geo: Geometry, state: State, ids, lo, hi):
 
     def pack(mask):
         sel = _nth_true(mask, M)
-        return jnp.where((sel < C)[:, None], jnp.take(rows, jnp.minimum(sel, C - 1), axis=0), 0)
+        keep = (sel < C)[:, None]
+        return tuple(jnp.where(keep, jnp.take(r, jnp.minimum(sel, C - 1), axis=0), 0) for r in rows)
 
     from_right = jax.lax.ppermute(pack(left), AXIS, [(d + 1, d) for d in range(N - 1)])
     from_left = jax.lax.ppermute(pack(right), AXIS, [(d, d + 1) for d in range(N - 1)])
-    (p_in, ids_in, planes_in), inc = _unrows(jnp.concatenate([from_right, from_left]), (parts, jnp.ones(C, bool)))
+    both = [jnp.concatenate([a, b]) for a, b in zip(from_right, from_left)]
+    (p_in, ids_in, planes_in), inc = _unrows(*both, (parts, jnp.ones(C, bool)))
     gone = left | right
     ids = jnp.where(gone, -1, ids)
     free = ids < 0

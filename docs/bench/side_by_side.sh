@@ -2,24 +2,33 @@
 # The speed target of issue 6, measured side by side: Taichi's CPU backend running MLS-MPM on the
 # mpm88 configuration (docs/bench/taichi_mlsmpm.py) and mpmjax's mpm88-equivalent
 # (mpmjax.studies.bench.MPM88: the same grid, particle block, shape function and transfer, through this
-# package's general step), one after the other, twice, alternating, under the same load.
-# usage: TAICHI_PYTHON=/path/to/venv-with-taichi/bin/python docs/bench/side_by_side.sh [STEPS] > out.jsonl
+# package's general step), one after the other, alternating, under the same load: per round Taichi on
+# 2 threads, then mpmjax on one device, then mpmjax with the particles split over 2 host devices
+# (numerics.devices = 2, the replicated grid: each core runs its half of the particles; issue 18 item 4).
+# usage: TAICHI_PYTHON=/path/to/venv-with-taichi/bin/python docs/bench/side_by_side.sh [STEPS] [ROUNDS] > out.jsonl
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 steps="${1:-2000}"
+rounds="${2:-2}"
 tpy="${TAICHI_PYTHON:?set TAICHI_PYTHON to a python with taichi installed (python -m venv tv && tv/bin/pip install taichi)}"
 jpy="${MPMJAX_PYTHON:-.venv/bin/python}"
-for round in 1 2; do
+for round in $(seq 1 "$rounds"); do
   "$tpy" docs/bench/taichi_mlsmpm.py "$steps" 2 | grep '^{' | sed "s/^{/{\"round\": $round, \"load\": \"$(cut -d' ' -f1 /proc/loadavg)\", /"
-  "$jpy" - "$steps" "$round" <<'PY'
+  for devices in 1 2; do
+    "$jpy" - "$steps" "$round" "$devices" <<'PY'
 import json, os, sys
+import jax
+steps, rnd, devices = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+jax.config.update("jax_num_cpu_devices", devices)  # before JAX starts its backends
 from mpmjax.studies import bench
 from mpmjax import build, validate
-steps, rnd = int(sys.argv[1]), int(sys.argv[2])
 for dtype in ("float32",):
     raw = json.loads(json.dumps(bench.MPM88))
     raw["numerics"]["dtype"] = dtype
+    raw["numerics"]["devices"] = devices
     r = bench._measure(build(validate(raw)), steps)
-    print(json.dumps({"round": rnd, "load": f"{os.getloadavg()[0]:.2f}", "code": f"mpmjax mpm88-equivalent ({dtype})", **r}))
+    code = f"mpmjax mpm88-equivalent ({dtype})" + (f", {devices} host devices" if devices > 1 else "")
+    print(json.dumps({"round": rnd, "load": f"{os.getloadavg()[0]:.2f}", "code": code, **r}))
 PY
+  done
 done
