@@ -16,8 +16,8 @@ reads the grid through, ``_step.make_step``'s ``grid``):
    per-node arrays, such as wall masks, terrain normals and the wall packing, are cut to the window);
 4. migration (``_migrate``): the particles whose first plane left the slab (at most one slab per
    step: the CFL limit keeps a step under one cell, and a slab is at least two planes wide) are
-   packed into a buffer of ``SEND`` x the slots (one int32 array, one ``ppermute`` per direction)
-   and sent to that neighbour, which puts them into free slots.
+   packed into a buffer of ``SEND`` x the slots (``_rows``: one ``ppermute`` per direction) and
+   sent to that neighbour, which puts them into free slots.
 
 What crosses devices per step: 2 x ``STENCIL - 1`` node planes per grid sum and the migration
 buffers, where the replicated layout (``_shard``) all-reduces the whole grid; 5 collectives per
@@ -239,33 +239,42 @@ def _nth_true(mask, size: int):
     return jnp.searchsorted(count, jnp.arange(1, size + 1, dtype=jnp.int32), side="left").astype(jnp.int32)
 
 
-def _rows(tree):
-    """The leaves of a per-particle pytree (leading axis n) as two arrays, floats (n, K) in their
-    own dtype and integers (n, L) in int32 (bools widened), so that a migration sends two buffers,
-    not one per leaf: each collective costs a rendezvous of the devices (measured on XLA:CPU: 50-130
-    us).  The floats stay floats so that derivatives pass through (a bitcast has none)."""
+def _rows(tree, n_ids: int):
+    """The leaves of a per-particle pytree (leading axis n) as few arrays: the floats (n, K) in
+    their own dtype, and the integers and flags (n, L) (bools widened), so that a migration sends
+    one or two buffers, not one per leaf: each collective costs a rendezvous of the devices
+    (measured on XLA:CPU: 50-130 us).  The floats stay floats, so derivatives pass (a bitcast has
+    none).  Where the float dtype holds every integer exactly (ids below ``n_ids`` and node planes
+    under 2^24 in float32, 2^53 in float64) the integers ride in the float buffer: one buffer."""
     fl, il = [], []
     for a in jax.tree_util.tree_leaves(tree):
         a2 = a.reshape(a.shape[0], -1)
-        if jnp.issubdtype(a.dtype, jnp.floating):
-            fl.append(a2)
-        else:
-            il.append(a2.astype(jnp.int32))
-    return jnp.concatenate(fl, axis=1), jnp.concatenate(il, axis=1)
+        (fl if jnp.issubdtype(a.dtype, jnp.floating) else il).append(a2)
+    dt = fl[0].dtype
+    if max(n_ids, 2**16) < 2 ** (jnp.finfo(dt).nmant + 1):
+        return (jnp.concatenate(fl + [jax.lax.stop_gradient(a.astype(dt)) for a in il], axis=1),)
+    return jnp.concatenate(fl, axis=1), jnp.concatenate([a.astype(jnp.int32) for a in il], axis=1)
 
 
-def _unrows(fbuf, ibuf, like):
-    """Inverse of ``_rows``: the two buffers (m rows) back into a pytree shaped as ``like``."""
+def _unrows(bufs, like):
+    """Inverse of ``_rows``: its buffers (m rows each) back into a pytree shaped as ``like``."""
     leaves, tdef = jax.tree_util.tree_flatten(like)
-    out, kf, ki = [], 0, 0
+    fbuf = bufs[0]
+    ibuf = bufs[1] if len(bufs) > 1 else None
+    kf = sum(int(np.prod(a.shape[1:], dtype=int)) for a in leaves if jnp.issubdtype(a.dtype, jnp.floating))
+    out, ki = [], 0
+    kff = 0
     m = fbuf.shape[0]
     for a in leaves:
         w = int(np.prod(a.shape[1:], dtype=int))
         if jnp.issubdtype(a.dtype, jnp.floating):
-            out.append(fbuf[:, kf : kf + w].reshape((m,) + a.shape[1:]))
-            kf += w
+            out.append(fbuf[:, kff : kff + w].reshape((m,) + a.shape[1:]))
+            kff += w
         else:
-            out.append(ibuf[:, ki : ki + w].reshape((m,) + a.shape[1:]).astype(a.dtype))
+            src = fbuf[:, kf + ki : kf + ki + w] if ibuf is None else ibuf[:, ki : ki + w]
+            if ibuf is None:
+                src = jnp.round(src).astype(jnp.int32)
+            out.append(src.reshape((m,) + a.shape[1:]).astype(a.dtype))
             ki += w
     return jax.tree_util.tree_unflatten(tdef, out)
 
@@ -284,7 +293,7 @@ def _migrate(scene: Scene, geo: Geometry, state: State, ids, lo, hi):
     right = state.active & (planes >= hi)
     parts = (_particles(state), ids, planes)
 
-    rows = _rows((parts, jnp.ones(C, bool)))
+    rows = _rows((parts, jnp.ones(C, bool)), N * C)
 
     def pack(mask):
         sel = _nth_true(mask, M)
@@ -294,7 +303,7 @@ def _migrate(scene: Scene, geo: Geometry, state: State, ids, lo, hi):
     from_right = jax.lax.ppermute(pack(left), AXIS, [(d + 1, d) for d in range(N - 1)])
     from_left = jax.lax.ppermute(pack(right), AXIS, [(d, d + 1) for d in range(N - 1)])
     both = [jnp.concatenate([a, b]) for a, b in zip(from_right, from_left)]
-    (p_in, ids_in, planes_in), inc = _unrows(*both, (parts, jnp.ones(C, bool)))
+    (p_in, ids_in, planes_in), inc = _unrows(both, (parts, jnp.ones(C, bool)))
     gone = left | right
     ids = jnp.where(gone, -1, ids)
     free = ids < 0
