@@ -195,8 +195,10 @@ _HEAD: dict[str, Key] = {
         "How a run split over numerics.devices > 1 shares the grid: replicated (every device holds the whole grid; "
         "the grids are summed every step) or slab (the grid cut into slabs along x, one per device, each holding its "
         "slab plus a halo of 2-3 node planes exchanged with its neighbours; particles move between devices with "
-        "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls. "
-        "Measured: docs/performance.md, \"One simulation across devices\".",
+        "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls; it "
+        "replaces the whole-grid sum by halo exchange (meant for many GPUs) but does not cut grid memory, and on 2 "
+        "CPU cores it is slower than one device (0.6-0.9x). Measured: docs/performance.md, \"Slabs with halo "
+        "exchange\".",
         choices=("replicated", "slab"),
     ),
     "numerics.slab_capacity": Key(
