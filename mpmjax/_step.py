@@ -32,7 +32,6 @@ The same code runs in 2D (plane strain) and 3D.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 

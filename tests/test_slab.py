@@ -42,7 +42,8 @@ ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.15", "time.n_frames=1", "numeri
       "numerics.devices=2", "numerics.decomposition=slab"]
 out = {"n_dev": jax.device_count()}
 def cut(setup):
-    return jax.tree_util.tree_map(lambda a: a[:-1] if a.ndim and a.shape[0] == setup.scene.n_particles else a, setup.state)
+    n = setup.scene.n_particles
+    return jax.tree_util.tree_map(lambda a: a[:-1] if a.ndim and a.shape[0] == n else a, setup.state)
 def pair(sc, s0, p, n):
     one = jax.jit(make_chunk(sc.replace(devices=1), n))(s0, p)
     two = jax.jit(make_chunk(sc, n))(s0, p)
@@ -94,7 +95,8 @@ print(json.dumps(out))
 
 @pytest.fixture(scope="module")
 def two_device_run():
-    env = dict(os.environ, XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=3", JAX_PLATFORMS="cpu")
+    flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=3"
+    env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
     p = subprocess.run([sys.executable, "-c", _CODE], capture_output=True, text=True, env=env, cwd=ROOT, timeout=900)
     assert p.returncode == 0, p.stderr[-3000:]
     return json.loads(p.stdout.strip().splitlines()[-1])

@@ -69,7 +69,8 @@ def main(rounds: int, steps: int):
                 print(json.dumps({"scene": name, "n_particles": n, "grid_shape": list(sc.grid_shape), "code": code,
                                   "round": rnd + 1, "steps": steps, "cpu_s": cpu, "wall_s": wall,
                                   "M_particle_steps_per_s_wall": n * steps / wall / 1e6,
-                                  "first_call_s": compile_s[code][0], "max_abs_dx_vs_one_m": compile_s[code][1], "n_lost": compile_s[code][2],
+                                  "first_call_s": compile_s[code][0], "max_abs_dx_vs_one_m": compile_s[code][1],
+                                  "n_lost": compile_s[code][2],
                                   "load": os.getloadavg()[0]}), flush=True)
 
 
