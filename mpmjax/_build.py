@@ -255,7 +255,10 @@ def memory_estimate(cfg: dict) -> dict:
       out of a frame, the last good frame kept for the health check, XLA buffers), the
       per-particle stencil temporaries of the transfers (for each of the stencil^dim nodes: weight,
       gradient, node index and the scattered mass and momentum, twice), and 4 copies of the
-      grid fields (mass, momentum, velocity, old velocity, force);
+      grid fields (mass, momentum, velocity, old velocity, force); with ``numerics.devices`` = N > 1
+      the grid once per device (the replicated grid, and slabs, whose windows span about the whole
+      grid: ``_slab``), and with slabs the particle state and temporaries for
+      ``numerics.slab_capacity`` times the particles (the devices' slots, empty ones included);
     * ``host_bytes``: the saved frames that ``run_scene`` reads back at the end for the
       summary metrics and pictures ((n_frames + 1) x particles x the stored float32 fields),
       plus, on the CPU backend, ``device_bytes``.
@@ -281,8 +284,10 @@ def memory_estimate(cfg: dict) -> dict:
     state_per_particle = (2 * dim + 2 * dim * dim + 3 + n_internal) * item + 2  # x v C tau J vol0 mu internal; bools
     stencil = _shapes.STENCIL[cfg["numerics.shape"]] ** dim
     step_per_particle = 2 * stencil * (2 * dim + 3) * item
-    particles = n * (4 * state_per_particle + step_per_particle)
-    grid = 4 * nodes * (3 * dim + 2) * item
+    n_dev = int(cfg["numerics.devices"])
+    slots = float(cfg["numerics.slab_capacity"]) if n_dev > 1 and cfg["numerics.decomposition"] == "slab" else 1.0
+    particles = slots * n * (4 * state_per_particle + step_per_particle)
+    grid = n_dev * 4 * nodes * (3 * dim + 2) * item
     frames = (cfg["time.n_frames"] + 1) * n * ((2 * dim + 3 + n_internal) * 4 + 1)
     return {
         "particles": n,

@@ -15,7 +15,7 @@ import pytest
 
 import mpmjax as m
 from mpmjax import _slab
-from mpmjax._build import build
+from mpmjax._build import build, memory_estimate
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 _CODE = """
 import json, jax, jax.numpy as jnp, numpy as np
 from mpmjax import _slab
-from mpmjax._build import build
+from mpmjax._build import build, memory_estimate
 from mpmjax._schema import load_scene
 from mpmjax._simulate import make_chunk
 ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.15", "time.n_frames=1", "numerics.dtype=float64", "numerics.ppc=2",
@@ -207,3 +207,15 @@ def test_lost_particles_do_not_take_the_slots_of_active_ones():
     assert np.array_equal(np.asarray(back.x), np.asarray(s0.x))
     b = np.asarray(bounds)
     assert b[0, 0] == 0 and b[0, 1] == b[1, 0] and b[1, 1] == sc.grid_shape[0], b
+
+
+def test_memory_estimate_counts_the_devices_grids_and_slots():
+    """The pre-run memory check counts one grid per device (the replicated grid, and slabs' windows,
+    which span about the whole grid) and, with slabs, slab_capacity x the particles (the slots,
+    empty ones included): on 2 devices 2x the grid bytes, with slabs also 1.5x the particle bytes."""
+    one = memory_estimate(m.load_scene("dambreak-lab"))
+    rep = memory_estimate(m.load_scene("dambreak-lab", ["numerics.devices=2"]))
+    slab = memory_estimate(m.load_scene("dambreak-lab", ["numerics.devices=2", "numerics.decomposition=slab"]))
+    assert rep["grid_bytes"] == 2 * one["grid_bytes"] and rep["particle_bytes"] == one["particle_bytes"]
+    assert slab["grid_bytes"] == rep["grid_bytes"]
+    assert slab["particle_bytes"] == pytest.approx(1.5 * one["particle_bytes"], rel=1e-12)
