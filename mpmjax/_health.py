@@ -203,7 +203,14 @@ def failure(scene, params, cfg, prev, cur, probs, frame: int, log=None, replay_m
         step = first
     p = probs[0]
     where = f"step {step}" if step is not None else f"steps {first}..{last}"
-    error = f"run failed at {where} (frame {frame}), t = {t:.6g} s: {p['message']}. Likely cause: {HINTS[p['kind']]}."
+    hint = HINTS[p["kind"]]
+    if p["kind"] == "lost" and scene.devices > 1 and scene.decomposition == "slab":
+        hint += (
+            f"; or, with numerics.decomposition = 'slab', a device ran out of particle slots and dropped them "
+            f"(then the particle's last state is finite and inside the grid): raise numerics.slab_capacity = "
+            f"{scene.slab_capacity:g} (allowed range: 1 .. {scene.devices})"
+        )
+    error = f"run failed at {where} (frame {frame}), t = {t:.6g} s: {p['message']}. Likely cause: {hint}."
     if len(probs) > 1:
         error += " Also: " + "; ".join(q["message"] for q in probs[1:]) + "."
     info = dict(
@@ -217,7 +224,7 @@ def failure(scene, params, cfg, prev, cur, probs, frame: int, log=None, replay_m
         first_step=first,
         last_step=last,
         message=p["message"],
-        hint=HINTS[p["kind"]],
+        hint=hint,
         others=[q["message"] for q in probs[1:]],
     )
     return RunFailure(info)

@@ -39,7 +39,8 @@ may sit on another device), and at least ``W_MIN`` planes per device.  A device 
 out (more particles crowd into its slab between rebalancings than its slots hold), or a
 migration buffer that overflows, drops the particles that do not fit: they are counted in
 ``n_lost`` and keep their state from the last rebalancing, inactive, so the run reports them
-rather than carrying them on silently (a particle that jumps more than one slab in a step is
+(``mpmjax run``'s health check stops it, its hint naming ``numerics.slab_capacity``) rather
+than carrying them on silently (a particle that jumps more than one slab in a step is
 made inactive and counted too).  Pipe inflow is refused for every multi-device run (``_schema``).
 
 Memory: a slab may be as wide as the grid less the other slabs' fewest planes (where the material

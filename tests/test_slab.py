@@ -219,3 +219,18 @@ def test_memory_estimate_counts_the_devices_grids_and_slots():
     assert rep["grid_bytes"] == 2 * one["grid_bytes"] and rep["particle_bytes"] == one["particle_bytes"]
     assert slab["grid_bytes"] == rep["grid_bytes"]
     assert slab["particle_bytes"] == pytest.approx(1.5 * one["particle_bytes"], rel=1e-12)
+
+
+def test_a_run_that_drops_particles_for_want_of_slots_stops_and_says_so(tmp_path):
+    """`mpmjax run --devices 2` on slabs with slab_capacity 1.0 (slots for exactly an even share,
+    while the slab edges fall between node planes, so one device gets up to a plane's worth more)
+    drops particles at the first dealing: the health check stops the run (exit status 3, as any
+    run that loses particles through no open face) and its hint names numerics.slab_capacity."""
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "mpmjax.cli", "run", "dambreak-lab", "--devices", "2", "--quiet", "--out", str(out),
+           "--set", "numerics.decomposition=slab", "--set", "numerics.slab_capacity=1.0", "--set", "time.t_end_s=0.01"]
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+    assert p.returncode == 3, p.stderr[-2000:]
+    assert "particle(s) lost" in p.stderr and "raise numerics.slab_capacity = 1" in p.stderr, p.stderr[-2000:]
+    assert json.loads((out / "summary.json").read_text())["status"] == "failed"
