@@ -625,12 +625,6 @@ def _run_scene(
                         f"\nnote: {lost - acc['lost_reported']} particle(s) left the domain through an open face by "
                         f"t = {float(state.t):.3f} s (frame {done}); they were deactivated and are counted in "
                         "summary.json n_lost"
-                        + (
-                            "; with numerics.decomposition = 'slab' they may also have been dropped by a device out "
-                            "of particle slots (raise numerics.slab_capacity)"
-                            if sc.devices > 1 and sc.decomposition == "slab"
-                            else ""
-                        )
                     )
                     acc["lost_reported"] = lost
                 if prog:
