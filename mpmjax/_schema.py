@@ -208,7 +208,7 @@ _HEAD: dict[str, Key] = {
         "Particle slots per device with numerics.decomposition = slab, as a multiple of an even share (particles / "
         "devices): room for particles that crowd into one slab between rebalancings. A particle that finds no slot "
         "is dropped and counted as lost, which stops mpmjax run with a hint to raise this. Each step costs in "
-        "proportion to the slots (1.25 measured lossless on the built-in dam breaks and 10 % faster).",
+        "proportion to the slots (1.25: no particle lost on the built-in dam breaks tried, 7-17 % faster).",
         lo=1.0,
         hi=1024.0,
     ),
