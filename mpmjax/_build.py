@@ -285,7 +285,8 @@ def memory_estimate(cfg: dict) -> dict:
     stencil = _shapes.STENCIL[cfg["numerics.shape"]] ** dim
     step_per_particle = 2 * stencil * (2 * dim + 3) * item
     n_dev = int(cfg["numerics.devices"])
-    slots = float(cfg["numerics.slab_capacity"]) if n_dev > 1 and cfg["numerics.decomposition"] == "slab" else 1.0
+    slab = n_dev > 1 and cfg["numerics.decomposition"] == "slab"
+    slots = min(float(cfg["numerics.slab_capacity"]), n_dev) if slab else 1.0  # _slab.geometry's capacity
     particles = slots * n * (4 * state_per_particle + step_per_particle)
     grid = n_dev * 4 * nodes * (3 * dim + 2) * item
     frames = (cfg["time.n_frames"] + 1) * n * ((2 * dim + 3 + n_internal) * 4 + 1)

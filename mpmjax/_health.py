@@ -207,8 +207,8 @@ def failure(scene, params, cfg, prev, cur, probs, frame: int, log=None, replay_m
     if p["kind"] == "lost" and scene.devices > 1 and scene.decomposition == "slab":
         hint += (
             f"; or, with numerics.decomposition = 'slab', a device ran out of particle slots and dropped them "
-            f"(then the particle's last state is finite and inside the grid): raise numerics.slab_capacity = "
-            f"{scene.slab_capacity:g} (allowed range: 1 .. {scene.devices})"
+            f"(then the particle's last state is finite and inside the grid): raise numerics.slab_capacity "
+            f"(now {scene.slab_capacity:g})"
         )
     error = f"run failed at {where} (frame {frame}), t = {t:.6g} s: {p['message']}. Likely cause: {hint}."
     if len(probs) > 1:

@@ -253,30 +253,22 @@ def _rows(tree, n_ids: int):
         (fl if jnp.issubdtype(a.dtype, jnp.floating) else il).append(a2)
     dt = fl[0].dtype
     if max(n_ids, 2**16) < 2 ** (jnp.finfo(dt).nmant + 1):
-        return (jnp.concatenate(fl + [jax.lax.stop_gradient(a.astype(dt)) for a in il], axis=1),)
+        return (jnp.concatenate(fl + [a.astype(dt) for a in il], axis=1),)
     return jnp.concatenate(fl, axis=1), jnp.concatenate([a.astype(jnp.int32) for a in il], axis=1)
 
 
 def _unrows(bufs, like):
     """Inverse of ``_rows``: its buffers (m rows each) back into a pytree shaped as ``like``."""
     leaves, tdef = jax.tree_util.tree_flatten(like)
-    fbuf = bufs[0]
-    ibuf = bufs[1] if len(bufs) > 1 else None
-    kf = sum(int(np.prod(a.shape[1:], dtype=int)) for a in leaves if jnp.issubdtype(a.dtype, jnp.floating))
-    out, ki = [], 0
-    kff = 0
-    m = fbuf.shape[0]
-    for a in leaves:
-        w = int(np.prod(a.shape[1:], dtype=int))
-        if jnp.issubdtype(a.dtype, jnp.floating):
-            out.append(fbuf[:, kff : kff + w].reshape((m,) + a.shape[1:]))
-            kff += w
-        else:
-            src = fbuf[:, kf + ki : kf + ki + w] if ibuf is None else ibuf[:, ki : ki + w]
-            if ibuf is None:
-                src = jnp.round(src).astype(jnp.int32)
-            out.append(src.reshape((m,) + a.shape[1:]).astype(a.dtype))
-            ki += w
+    width = [int(np.prod(a.shape[1:], dtype=int)) for a in leaves]
+    is_float = [bool(jnp.issubdtype(a.dtype, jnp.floating)) for a in leaves]
+    kf = sum(w for w, f in zip(width, is_float) if f)
+    cols = {True: bufs[0][:, :kf], False: bufs[1] if len(bufs) > 1 else jnp.round(bufs[0][:, kf:]).astype(jnp.int32)}
+    at = {True: 0, False: 0}
+    out = []
+    for a, w, f in zip(leaves, width, is_float):
+        out.append(cols[f][:, at[f] : at[f] + w].reshape((-1,) + a.shape[1:]).astype(a.dtype))
+        at[f] += w
     return jax.tree_util.tree_unflatten(tdef, out)
 
 

@@ -183,7 +183,8 @@ def test_slab_refuses_what_it_cannot_run():
 def test_decomposition_key_is_validated():
     with pytest.raises(m.SceneError, match="numerics.decomposition"):
         m.load_scene("dambreak-lab", ["numerics.decomposition=cubes"])
-    assert np.isfinite(_scene(["numerics.decomposition=slab"]).dt)
+    sc = _scene(["numerics.decomposition=slab", "numerics.devices=1"])
+    assert (sc.decomposition, sc.slab_capacity) == ("slab", 1.5)  # the keys reach the Scene, with the default
 
 
 def test_lost_particles_do_not_take_the_slots_of_active_ones():
@@ -232,5 +233,24 @@ def test_a_run_that_drops_particles_for_want_of_slots_stops_and_says_so(tmp_path
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
     assert p.returncode == 3, p.stderr[-2000:]
-    assert "particle(s) lost" in p.stderr and "raise numerics.slab_capacity = 1" in p.stderr, p.stderr[-2000:]
+    assert "particle(s) lost" in p.stderr and "raise numerics.slab_capacity (now 1)" in p.stderr, p.stderr[-2000:]
     assert json.loads((out / "summary.json").read_text())["status"] == "failed"
+
+
+@pytest.mark.parametrize("n_ids", [1000, 2**30])
+def test_migration_rows_round_trip_exactly(n_ids):
+    """A migration packs a particle's leaves into rows and back (``_rows``, ``_unrows``) without
+    changing a bit: floats stay floats, integers and flags ride in the float buffer when the dtype
+    holds them exactly (ids below 2^24 in float32), in an int32 buffer otherwise (n_ids = 2^30)."""
+    rng = np.random.default_rng(0)
+    tree = {
+        "x": jnp.asarray(rng.standard_normal((7, 2)), jnp.float32),
+        "C": jnp.asarray(rng.standard_normal((7, 2, 2)), jnp.float32),
+        "ids": jnp.asarray(rng.integers(-1, 2**23, 7), jnp.int32),
+        "active": jnp.asarray(rng.integers(0, 2, 7), bool),
+    }
+    bufs = _slab._rows(tree, n_ids)
+    assert len(bufs) == (1 if n_ids < 2**24 else 2)
+    back = _slab._unrows(bufs, tree)
+    for k in tree:
+        assert back[k].dtype == tree[k].dtype and np.array_equal(np.asarray(back[k]), np.asarray(tree[k])), k
