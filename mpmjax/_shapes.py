@@ -58,8 +58,30 @@ SUPPORT = {"linear": 1.0, "gimp": 1.5, "quadratic": 1.5, "cubic": 2.0, "quadrati
 # GIMP, APIC's B D^-1 equals (linear) or is replaced by (GIMP) the velocity gradient.  The
 # boundary-modified kinds have this D away from walls only (``_transfer.make_g2p``).
 APIC_D_FACTOR = {"quadratic": 0.25, "cubic": 1.0 / 3.0, "quadratic_bm": 0.25, "cubic_bm": 1.0 / 3.0}
+# Kinds whose 1-D weights are piecewise (a chain of selects per node).  The stencil (``_transfer._Stencil``)
+# gathers their per-node values, so XLA computes them once; the polynomial kinds' values are broadcast,
+# which XLA fuses and recomputes per stencil node, cheaper than the gather.  Measured on dambreak-lab,
+# 300 steps, CPU s (docs/performance.md, "Stencil layout"): gimp 0.39 gathered / 0.56 broadcast, cubic
+# 0.70 / 0.98; quadratic 0.47 / 0.42, quadratic_bm 0.58 / 0.50, cubic_bm 0.90 / 0.82, linear 0.20 / 0.18.
+PIECEWISE = frozenset({"gimp", "cubic"})
 # boundary-modified kind -> the plain B-spline it modifies
 BOUNDARY_MODIFIED = {"quadratic_bm": "quadratic", "cubic_bm": "cubic"}
+
+
+def _half_base(xi):
+    """floor(xi - 1/2), the first node of a 3-node stencil centred on the nearest node, written as
+    round(xi) - 1 (round half to even), which differs only exactly half-way between two nodes,
+    where both stencils are valid (the far node's weight is 0).
+
+    Not floor(xi - 0.5): xi is (x - origin) / h, which XLA computes as a product with 1/h, and
+    XLA:CPU contracts a product followed by an add into one fused multiply-add wherever both sit in
+    one fusion.  XLA also recomputes the stencil in each fusion that reads it, so the node indices
+    and the weights (from xi - base) could see two roundings of xi - 0.5: a particle exactly
+    half-way between nodes (every third particle of a ppc-3 lattice along each axis) then took one
+    stencil's weights on the other's nodes, one cell off (119 of dambreak-lab's 3600 particles at
+    t = 0).  round(xi) has no add after the product to contract, so every fusion gets the same base.
+    ``floor(xi)`` (linear, cubic) is safe as it stands."""
+    return jnp.round(xi) - 1.0
 
 
 def _linear(xi):
@@ -71,7 +93,7 @@ def _linear(xi):
 
 
 def _quadratic(xi):
-    base = jnp.floor(xi - 0.5)
+    base = _half_base(xi)
     f = xi - base  # in [0.5, 1.5)
     w = jnp.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], axis=-1)
     dw = jnp.stack([f - 1.5, -2.0 * (f - 1.0), f - 0.5], axis=-1)
@@ -125,7 +147,7 @@ def _boundary_modified(kind, xi, wall_lo, wall_hi):
     lo = jnp.asarray(wall_lo, dt)
     hi = jnp.asarray(wall_hi, dt)
     if kind == "quadratic_bm":
-        base = jnp.clip(jnp.floor(xi - 0.5), lo - 1.0, hi - 1.0)
+        base = jnp.clip(_half_base(xi), lo - 1.0, hi - 1.0)
         f = xi - base
         w = jnp.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], axis=-1)
         dw = jnp.stack([f - 1.5, -2.0 * (f - 1.0), f - 0.5], axis=-1)
@@ -164,7 +186,7 @@ def _gimp_kernel(r, lp):
 
 
 def _gimp(xi, lp):
-    base = jnp.floor(xi - 0.5)
+    base = _half_base(xi)
     r = xi[..., None] - (base[..., None] + jnp.arange(3.0, dtype=xi.dtype).reshape((1,) * xi.ndim + (3,)))
     w, dw = _gimp_kernel(r, lp)
     return base, w, dw

@@ -38,6 +38,7 @@ import numpy as np
 from . import _shapes
 from ._boundary import (
     _wall_masks,
+    along,
     apply_wall,
     make_release,
     navier_slip,
@@ -125,9 +126,9 @@ def make_step(scene: Scene, axis: str | None = None):
             if i in slip_nb:  # the first interior nodes as the walls before this one left them
                 inner = grid.local(grid.nodes(slip_nb[i]))
                 v_wall = navier_slip(v_new, nrm, v_new[inner], wall.slip_length / scene.h)
+                v_new = jnp.where(grid.nodes(mask)[:, None], v_wall, v_new)
             else:
-                v_wall = apply_wall(v_new, nrm, wall.kind)
-            v_new = jnp.where(grid.nodes(mask)[:, None], v_wall, v_new)
+                v_new = apply_wall(v_new, nrm, wall.kind, grid.nodes(mask))
         if terrain is not None:
             v_new = jnp.where(grid.nodes(t_mask)[:, None], terrain_velocity(v_new, grid.nodes(t_nrm), terrain), v_new)
         if pipe is not None:
@@ -139,14 +140,20 @@ def make_step(scene: Scene, axis: str | None = None):
         v_pic, v_p, C, L = g2p(st, v_new, v_old, state.v)
         x = state.x + dt * v_pic
 
-        # particle-level walls: push back out, remove inward normal velocity
+        # particle-level walls: push back out, remove inward normal velocity.  Column by column over
+        # the normal's nonzero components only: a box face touches one column, so the walls' updates
+        # do not chain through every column (XLA would recompute the chain in each fusion that reads it)
+        xs, vs = [x[:, a] for a in range(dim)], [v_p[:, a] for a in range(dim)]
         for _, nrm, wall in walls:
-            n_ = jnp.asarray(nrm, dtp)
-            phi = (x - jnp.asarray(wall.point, dtp)[None, :]) @ n_
+            axes = np.flatnonzero(nrm)
+            phi = sum((xs[a] - float(wall.point[a])) * float(nrm[a]) for a in axes)
+            vn = sum(vs[a] * float(nrm[a]) for a in axes)
             behind = phi < 0.0
-            x = jnp.where(behind[:, None], x - phi[:, None] * n_[None, :], x)
-            vn = v_p @ n_
-            v_p = jnp.where((behind & (vn < 0.0))[:, None], v_p - vn[:, None] * n_[None, :], v_p)
+            inward = behind & (vn < 0.0)
+            for a in axes:
+                xs[a] = jnp.where(behind, xs[a] - phi * float(nrm[a]), xs[a])
+                vs[a] = jnp.where(inward, vs[a] - vn * float(nrm[a]), vs[a])
+        x, v_p = jnp.stack(xs, axis=1), jnp.stack(vs, axis=1)
         if terrain is not None:
             zb = terrain.height(x[:, :-1], jnp)
             below = x[:, -1] < zb
@@ -186,11 +193,11 @@ def make_step(scene: Scene, axis: str | None = None):
         shear = shear_rate(dd, scene.shear_measure)
         gate = state.gate
         if scene.gate is not None:
-            gn = jnp.asarray(scene.gate.normal, dtp)
             # only active particles pass the gate: an inactive one (a parked pool particle, a lost one)
             # keeps its state untouched, so a run that steps only a prefix of the buffer holding every
             # active particle (``_simulate.make_prefix_advance``) carries the rest exactly as this step would
-            gate = gate | (state.active & ((x - jnp.asarray(scene.gate.point, dtp)[None, :]) @ gn > 0.0))
+            beyond = along(x - jnp.asarray(scene.gate.point, dtp)[None, :], scene.gate.normal) > 0.0
+            gate = gate | (state.active & beyond)
         mu, internal = rheo.viscosity(params.material, shear, state.internal, dt, gate)
         tau = deviatoric_update(state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update)
 

@@ -101,35 +101,51 @@ class _Stencil:
             base, w1, dw1 = _shapes.weights_1d(scene.shape, xi, h, scene.lp_cells)
             self.modified = None
         k = _shapes.STENCIL[scene.shape]
-        offs = np.array(list(itertools.product(range(k), repeat=dim)), dtype=np.int32)  # (S, dim)
-        S = offs.shape[0]
         n = x.shape[0]
+        S = k**dim
         strides = np.cumprod((list(scene.grid_shape[1:]) + [1])[::-1])[::-1]
-        idx = jnp.zeros((n, S), jnp.int32)
-        w = jnp.ones((n, S), x.dtype)
-        grads = []
-        comp_w = []
+        full = (n,) + (k,) * dim
+
+        def spread(a, d):
+            """(n, k) per-axis values -> (n, S): stencil node s (C order over the k^dim block) takes
+            the value of its index along axis d.  A broadcast, not a gather: XLA:CPU fuses it into
+            its consumers, recomputing the values there."""
+            return jnp.broadcast_to(a.reshape((n,) + tuple(k if e == d else 1 for e in range(dim))), full).reshape(n, S)
+
+        offs = np.array(list(itertools.product(range(k), repeat=dim)), dtype=np.int32)  # (S, dim)
+        gather = scene.shape in _shapes.PIECEWISE
+
+        def weight(a, d):
+            """``spread`` for 1-D weights; for the piecewise kinds a gather, which makes XLA compute
+            them once instead of once per stencil node (docs/performance.md, "Stencil layout")."""
+            return jnp.take(a, offs[:, d], axis=1) if gather else spread(a, d)
+
+        idx = 0
+        w = 1.0
+        r = []
         for d in range(dim):
-            node = base[:, d][:, None] + offs[None, :, d]
+            node = base[:, d][:, None] + jnp.arange(k, dtype=jnp.int32)[None, :]  # (n, k)
+            # node minus particle position, unwrapped [m]
+            r.append(spread(node.astype(x.dtype) * h - (xi[:, d] * h)[:, None], d))
             if scene.periodic[d]:
                 node = jnp.mod(node, scene.grid_shape[d])
             else:
                 node = jnp.clip(node, 0, scene.grid_shape[d] - 1)
-            idx = idx + node * int(strides[d])
-            wd = jnp.take(w1[:, d, :], offs[:, d], axis=1)
-            comp_w.append(wd)
-            w = w * wd
+            idx = idx + spread(node * int(strides[d]), d)
+        wd = [weight(w1[:, d, :], d) for d in range(dim)]
         for d in range(dim):
-            g = jnp.take(dw1[:, d, :], offs[:, d], axis=1)
+            w = w * wd[d]
+        grads = []
+        for d in range(dim):
+            g = weight(dw1[:, d, :], d)
             for e in range(dim):
                 if e != d:
-                    g = g * comp_w[e]
+                    g = g * wd[e]
             grads.append(g)
         self.idx = idx  # (n, S)
         self.w = w  # (n, S)
         self.dw = jnp.stack(grads, axis=-1)  # (n, S, dim)
-        # node minus particle position, unwrapped [m]: (n, S, dim)
-        self.r = (base[:, None, :] + offs[None, :, :]).astype(x.dtype) * h - (xi * h)[:, None, :]
+        self.r = jnp.stack(r, axis=-1)  # (n, S, dim)
         self.S = S
 
 
