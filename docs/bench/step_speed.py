@@ -3,7 +3,8 @@
 
     python docs/bench/step_speed.py SCENE STEPS REPEATS [KEY=VALUE ...]
 
-SCENE: a built-in scene, a TOML path, or ``mpm88`` (``mpmjax.studies.bench.MPM88``).  The chunk is
+SCENE: a built-in scene, a TOML path, or ``mpm88`` (``mpmjax.studies.bench.MPM88``); KEY=VALUE as
+``mpmjax run --set`` (``numerics.devices=N`` also makes N host devices).  The chunk is
 compiled and run once first; the line gives the median CPU time (``time.process_time``, both cores)
 and wall time of REPEATS calls, and the code's label from the environment variable CODE.
 """
@@ -18,13 +19,21 @@ import time
 import jax
 
 from mpmjax import build, load_scene, validate
+from mpmjax._schema import parse_override
 from mpmjax._simulate import make_chunk
 from mpmjax.studies.bench import MPM88
 
 
 def main(name: str, steps: int, repeats: int, sets: list[str]) -> None:
+    items = [parse_override(o) for o in sets]
+    devices = max([int(v) for k, v in items if k == "numerics.devices"] or [1])
+    jax.config.update("jax_num_cpu_devices", devices)  # host devices, before JAX starts its backends
     if name == "mpm88":
-        setup = build(validate(json.loads(json.dumps(MPM88))))
+        raw = json.loads(json.dumps(MPM88))
+        for key, val in items:
+            section, leaf = key.split(".", 1)
+            raw.setdefault(section, {})[leaf] = val
+        setup = build(validate(raw))
     else:
         setup = build(load_scene(name, sets))
     f = jax.jit(make_chunk(setup.scene, steps))
