@@ -30,6 +30,7 @@ files, the transform and the maps' largest values.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -40,6 +41,8 @@ import numpy as np
 
 from ._dem import NODATA, write_raster
 from ._scene import Params, Scene, State
+from ._shard import AXIS
+from ._slab import make_slab_advance
 from ._step import make_step
 
 MAPS = {  # file stem: (unit, meaning)
@@ -93,8 +96,11 @@ def init_maps(grid: HazardGrid, dtype) -> HazardMaps:
     return HazardMaps(z, z, z, jnp.full((grid.n_bins,), -1.0, dtype), jnp.zeros((), jnp.int32))
 
 
-def bins(state: State, grid: HazardGrid):
-    """Flow depth [m] and depth-averaged speed [m/s] per bin (flat) of a state (module docstring)."""
+def bins(state: State, grid: HazardGrid, total=None):
+    """Flow depth [m] and depth-averaged speed [m/s] per bin (flat) of a state (module docstring).
+
+    ``total``: sums the per-bin volume and momentum over the devices that hold the particles
+    (``psum`` on slabs, ``make_hazard_advance``); default: the state holds them all."""
     k = len(grid.shape)
     x, dt = state.x, state.x.dtype
     idx = jnp.floor((x[:, :k] - jnp.asarray(grid.lo, dt)[None, :]) / grid.cell).astype(jnp.int32)
@@ -104,14 +110,16 @@ def bins(state: State, grid: HazardGrid):
     vol = jnp.where(inside, state.vol0, 0.0)
     vsum = jnp.zeros((grid.n_bins,), dt).at[flat].add(vol, mode="drop")
     mom = jnp.zeros((grid.n_bins, x.shape[1]), dt).at[flat].add(vol[:, None] * state.v, mode="drop")
+    if total is not None:
+        vsum, mom = total((vsum, mom))
     depth = vsum / grid.cell**k
     speed = jnp.sqrt(jnp.sum(mom * mom, axis=1)) / jnp.where(vsum > 0, vsum, 1.0)
     return depth, speed
 
 
-def update(maps: HazardMaps, state: State, grid: HazardGrid) -> HazardMaps:
-    """The maps after one more sample of ``state`` (time ``state.t``)."""
-    depth, speed = bins(state, grid)
+def update(maps: HazardMaps, state: State, grid: HazardGrid, total=None) -> HazardMaps:
+    """The maps after one more sample of ``state`` (time ``state.t``); ``total`` as ``bins``."""
+    depth, speed = bins(state, grid, total)
     wet = depth >= grid.threshold
     return maps._replace(
         max_depth=jnp.maximum(maps.max_depth, depth),
@@ -123,19 +131,35 @@ def update(maps: HazardMaps, state: State, grid: HazardGrid) -> HazardMaps:
 
 def make_hazard_advance(scene: Scene, grid: HazardGrid):
     """Jitted ``advance(state, maps, params) -> (state, maps)`` over one frame: the scene's step,
-    and after every ``grid.every``-th step (counted from the start of the run) a map update."""
+    and after every ``grid.every``-th step (counted from the start of the run) a map update.
+    On slabs (``numerics.decomposition = "slab"``) the update runs inside the slab advance, each
+    device binning its own particles and the bin sums added over devices, so the particles are
+    dealt out once per frame (and rebalanced as usual), not once per step."""
+
+    def sample(m: HazardMaps, s: State, total=None) -> HazardMaps:
+        m = m._replace(steps=m.steps + 1)
+        if grid.every == 1:
+            return update(m, s, grid, total)
+        return jax.lax.cond(m.steps % grid.every == 0, lambda: update(m, s, grid, total), lambda: m)
+
+    if scene.devices > 1 and scene.decomposition == "slab":
+        psum = functools.partial(jax.lax.psum, axis_name=AXIS)
+        slab_advance = make_slab_advance(
+            scene, make_step(scene, AXIS), scene.steps_per_frame, observe=lambda m, s: sample(m, s, psum)
+        )
+
+        def advance(state: State, maps: HazardMaps, params: Params):
+            return slab_advance(state, params, maps)
+
+        return jax.jit(advance)
+
     step = make_step(scene)
 
     def advance(state: State, maps: HazardMaps, params: Params):
         def body(carry, _):
             s, m = carry
             s = step(s, params)
-            m = m._replace(steps=m.steps + 1)
-            if grid.every == 1:
-                m = update(m, s, grid)
-            else:
-                m = jax.lax.cond(m.steps % grid.every == 0, lambda: update(m, s, grid), lambda: m)
-            return (s, m), None
+            return (s, sample(m, s)), None
 
         return jax.lax.scan(body, (state, maps), None, length=scene.steps_per_frame)[0]
 

@@ -321,46 +321,56 @@ def _migrate(scene: Scene, geo: Geometry, state: State, ids, lo, hi):
     return parts._replace(t=state.t, n_lost=state.n_lost), ids, strays
 
 
-def make_slab_advance(scene: Scene, local_step, n_steps: int):
+def make_slab_advance(scene: Scene, local_step, n_steps: int, observe=None):
     """``advance(state, params) -> state``: ``n_steps`` steps of ``local_step`` (the step built with
-    ``axis=AXIS``, taking a ``grid`` layout) on slabs, rebalanced every ``REBALANCE_STEPS``."""
+    ``axis=AXIS``, taking a ``grid`` layout) on slabs, rebalanced every ``REBALANCE_STEPS``.
+
+    ``observe(carry, state) -> carry``: called after every step on each device with the device's
+    particles (its slots; empty ones inactive) and a carry replicated over devices, which it must
+    keep replicated (reduce its particle sums with ``psum`` over ``AXIS``; the hazard maps,
+    ``_hazard``).  With it, ``advance(state, params, carry) -> (state, carry)``."""
     mesh = particle_mesh(scene.devices)
 
-    def block(state, params, length):
+    def block(state, params, length, obs):
         geo = geometry(scene, state.x.shape[0])
         slabs, ids, bounds = _distribute(scene, geo, state)
 
-        def body(s, ids, bounds, params):
+        def body(s, ids, bounds, params, obs):
             lo, hi = bounds[0, 0], bounds[0, 1]
             grid = Slab(geo, lo, hi)
 
             def one(carry, _):
-                s, ids, strays = carry
+                s, ids, strays, obs = carry
                 s, ids, n = _migrate(scene, geo, local_step(s, params, grid), ids, lo, hi)
-                return (s, ids, strays + n), None
+                if observe is not None:
+                    obs = observe(obs, s)
+                return (s, ids, strays + n, obs), None
 
             zero = ids[0] * 0  # an int32 zero that varies over devices, as the per-device count it starts
-            s, ids, strays = jax.lax.scan(one, (s, ids, zero), None, length=length)[0]
-            return s._replace(n_lost=s.n_lost + jax.lax.psum(strays, AXIS)), ids
+            s, ids, strays, obs = jax.lax.scan(one, (s, ids, zero, obs), None, length=length)[0]
+            return s._replace(n_lost=s.n_lost + jax.lax.psum(strays, AXIS)), ids, obs
 
         spec = jax.tree_util.tree_map(lambda a: PartitionSpec(AXIS) if jnp.ndim(a) else PartitionSpec(), slabs)
         pspec = jax.tree_util.tree_map(lambda _: PartitionSpec(), params)
+        ospec = jax.tree_util.tree_map(lambda _: PartitionSpec(), obs)
         sharded = jax.shard_map(
             body,
             mesh=mesh,
-            in_specs=(spec, PartitionSpec(AXIS), PartitionSpec(AXIS), pspec),
-            out_specs=(spec, PartitionSpec(AXIS)),
+            in_specs=(spec, PartitionSpec(AXIS), PartitionSpec(AXIS), pspec, ospec),
+            out_specs=(spec, PartitionSpec(AXIS), ospec),
         )
-        out, ids = sharded(slabs, ids, bounds, params)
-        return _collect(state, out, ids)
+        out, ids, obs = sharded(slabs, ids, bounds, params, obs)
+        return _collect(state, out, ids), obs
 
     q, r = divmod(n_steps, REBALANCE_STEPS)
 
-    def advance(state, params):
+    def advance(state, params, obs=()):
         if q:
-            state = jax.lax.scan(lambda s, _: (block(s, params, REBALANCE_STEPS), None), state, None, length=q)[0]
+            (state, obs), _ = jax.lax.scan(
+                lambda c, _: (block(c[0], params, REBALANCE_STEPS, c[1]), None), (state, obs), None, length=q
+            )
         if r:
-            state = block(state, params, r)
-        return state
+            state, obs = block(state, params, r, obs)
+        return state if observe is None else (state, obs)
 
     return advance
