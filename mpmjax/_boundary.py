@@ -52,7 +52,8 @@ def along(a, nrm):
     as a separate matrix-vector call that no elementwise loop fuses (12 such calls were 12 of the
     mpm88 step's 87 thunks); this sum fuses with its neighbours."""
     nrm = np.asarray(nrm, float)
-    return sum(a[:, k] * float(nrm[k]) for k in np.flatnonzero(nrm))
+    terms = [a[:, k] * float(nrm[k]) for k in np.flatnonzero(nrm)]
+    return sum(terms[1:], terms[0]) if terms else jnp.zeros(a.shape[:1], a.dtype)
 
 
 def apply_wall(v, nrm, kind, on):

@@ -79,7 +79,7 @@ def _half_base(xi):
     and the weights (from xi - base) could see two roundings of xi - 0.5: a particle exactly
     half-way between nodes (every third particle of a ppc-3 lattice along each axis) then took one
     stencil's weights on the other's nodes, one cell off (119 of dambreak-lab's 3600 particles at
-    t = 0).  round(xi) has no add after the product to contract, so every fusion gets the same base.
+    t = 0, and particles that stay near the edge later; float64 too).  round(xi) has no add after the product to contract, so every fusion gets the same base.
     ``floor(xi)`` (linear, cubic) is safe as it stands."""
     return jnp.round(xi) - 1.0
 

@@ -14,10 +14,11 @@ reads the grid through, ``_step.make_step``'s ``grid``):
    node a device's particles reach holds the whole sum; the same for J-bar's second grid sum;
 3. the grid update, the G2P and the particle update on the device, as on one device (static
    per-node arrays, such as wall masks, terrain normals and the wall packing, are cut to the window);
-4. migration (``_migrate``): the particles whose first plane left the slab (at most one slab per
-   step: the CFL limit keeps a step under one cell, and a slab is at least two planes wide) are
-   packed into a buffer of ``SEND`` x the slots (``_rows``: one ``ppermute`` per direction) and
-   sent to that neighbour, which puts them into free slots.
+4. migration (``_migrate``, run at the start of the next step, on the stored state): the particles
+   whose first plane left the slab (at most one slab per step: the CFL limit keeps a step under one
+   cell, and a slab is at least two planes wide) are packed into a buffer of ``SEND`` x the slots
+   (``_rows``: one ``ppermute`` per direction) and sent to that neighbour, which puts them into free
+   slots.
 
 What crosses devices per step: 2 x ``STENCIL - 1`` node planes per grid sum and the migration
 buffers, where the replicated layout (``_shard``) all-reduces the whole grid; 5 collectives per
@@ -341,7 +342,12 @@ def make_slab_advance(scene: Scene, local_step, n_steps: int, observe=None):
 
             def one(carry, _):
                 s, ids, strays, obs = carry
-                s, ids, n = _migrate(scene, geo, local_step(s, params, grid), ids, lo, hi)
+                # migrate first, then step: the planes that place a particle and the stencil the step
+                # builds are then both read from the stored carry, never from two fusions' roundings
+                # of a freshly computed x (docs/performance.md, "Stencil layout"); at a block's start
+                # every particle is already in its slab
+                s, ids, n = _migrate(scene, geo, s, ids, lo, hi)
+                s = local_step(s, params, grid)
                 if observe is not None:
                     obs = observe(obs, s)
                 return (s, ids, strays + n, obs), None
