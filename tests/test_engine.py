@@ -220,7 +220,8 @@ for dim in (2, 3):
         x = (np.asarray(origin) + (k + 0.5 * rng.integers(0, 2, (n, dim))) * h).astype(dt)
         nud = rng.integers(-3, 4, (n, dim))
         for _ in range(3):
-            x = np.where(nud > 0, np.nextafter(x, dt.type(np.inf)), np.where(nud < 0, np.nextafter(x, dt.type(-np.inf)), x))
+            up, down = np.nextafter(x, dt.type(np.inf)), np.nextafter(x, dt.type(-np.inf))
+            x = np.where(nud > 0, up, np.where(nud < 0, down, x))
             nud = nud - np.sign(nud)
         for kind in ("linear", "gimp", "quadratic", "cubic", "quadratic_bm", "cubic_bm"):
             scene = m.Scene(dim=dim, h=h, lo=tuple(o + 2 * h for o in origin),
