@@ -58,12 +58,13 @@ SUPPORT = {"linear": 1.0, "gimp": 1.5, "quadratic": 1.5, "cubic": 2.0, "quadrati
 # GIMP, APIC's B D^-1 equals (linear) or is replaced by (GIMP) the velocity gradient.  The
 # boundary-modified kinds have this D away from walls only (``_transfer.make_g2p``).
 APIC_D_FACTOR = {"quadratic": 0.25, "cubic": 1.0 / 3.0, "quadratic_bm": 0.25, "cubic_bm": 1.0 / 3.0}
-# Kinds whose 1-D weights are piecewise (a chain of selects per node).  The stencil (``_transfer._Stencil``)
-# gathers their per-node values, so XLA computes them once; the polynomial kinds' values are broadcast,
-# which XLA fuses and recomputes per stencil node, cheaper than the gather.  dambreak-lab, 300 steps, CPU s,
-# gathered / broadcast (docs/performance.md, "Stencil layout"): gimp 0.43 / 0.66, cubic 0.77 / 1.13;
-# quadratic 0.52 / 0.49, quadratic_bm 0.64 / 0.58, cubic_bm 1.02 / 0.93, linear 0.22 / 0.22.
-PIECEWISE = frozenset({"gimp", "cubic"})
+# Kinds whose 1-D weights are costly piecewise functions (a chain of selects per node).  The stencil
+# (``_transfer._Stencil``) gathers their per-node values, so XLA computes them once; the other kinds'
+# values are broadcast, which XLA fuses and recomputes per stencil node, cheaper than the gather.
+# dambreak-lab, 300 steps, CPU s, gathered / broadcast (docs/performance.md, "Stencil layout"): cubic
+# 0.77 / 1.13; quadratic 0.52 / 0.49, quadratic_bm 0.64 / 0.58, cubic_bm 1.02 / 0.93, linear 0.22 / 0.22;
+# gimp 0.43 / 0.66 with the general kernel, and broadcast wins (0-8 %) with the per-node one (``_gimp``).
+PIECEWISE = frozenset({"cubic"})
 # boundary-modified kind -> the plain B-spline it modifies
 BOUNDARY_MODIFIED = {"quadratic_bm": "quadratic", "cubic_bm": "cubic"}
 
@@ -79,7 +80,8 @@ def _half_base(xi):
     and the weights (from xi - base) could see two roundings of xi - 0.5: a particle exactly
     half-way between nodes (every third particle of a ppc-3 lattice along each axis) then took one
     stencil's weights on the other's nodes, one cell off (119 of dambreak-lab's 3600 particles at
-    t = 0, and particles that stay near the edge later; float64 too).  round(xi) has no add after the product to contract, so every fusion gets the same base.
+    t = 0, and particles that stay near the edge later; float64 too).  round(xi) has no add after
+    the product to contract, so every fusion gets the same base.
     ``floor(xi)`` (linear, cubic) is safe as it stands."""
     return jnp.round(xi) - 1.0
 
@@ -185,11 +187,30 @@ def _gimp_kernel(r, lp):
     return w, dw
 
 
+def _gimp_outer(a, lp):
+    """uGIMP weight and derivative (with respect to r) at distance a >= 1/2 cell, r = a > 0: the
+    linear and the outer regime of ``_gimp_kernel`` (for r = -a the derivative changes sign)."""
+    w = jnp.where(a < 1.0 - lp, 1.0 - a, jnp.where(a < 1.0 + lp, (1.0 + lp - a) ** 2 / (4.0 * lp), 0.0))
+    d = jnp.where(a < 1.0 - lp, -1.0, jnp.where(a < 1.0 + lp, -(1.0 + lp - a) / (2.0 * lp), 0.0))
+    return w, d
+
+
 def _gimp(xi, lp):
+    """``_gimp_kernel`` at the three stencil nodes, each with only the regimes it can be in: with
+    f = xi - base in [1/2, 3/2], node 0 is at distance f, node 2 at 2 - f (both >= 1/2: linear or
+    outer) and node 1 at |f - 1| <= 1/2 (inner or linear; lp = 1/(2 ppc) <= 1/2).  The same formulas
+    as ``_gimp_kernel`` (equal to it bit for bit), about half its selects: cheap enough for the stencil
+    to broadcast them, which XLA recomputes per stencil node, instead of gathering them
+    (``PIECEWISE``, docs/performance.md, "Stencil layout")."""
     base = _half_base(xi)
-    r = xi[..., None] - (base[..., None] + jnp.arange(3.0, dtype=xi.dtype).reshape((1,) * xi.ndim + (3,)))
-    w, dw = _gimp_kernel(r, lp)
-    return base, w, dw
+    f = xi - base
+    r1 = f - 1.0
+    a1 = jnp.abs(r1)
+    w1 = jnp.where(a1 < lp, 1.0 - (r1 * r1 + lp * lp) / (2.0 * lp), 1.0 - a1)
+    d1 = jnp.where(a1 < lp, -r1 / lp, -jnp.sign(r1))
+    w0, d0 = _gimp_outer(f, lp)
+    w2, d2 = _gimp_outer(2.0 - f, lp)
+    return base, jnp.stack([w0, w1, w2], axis=-1), jnp.stack([d0, d1, -d2], axis=-1)
 
 
 def weights_1d(kind: str, xi, h: float, lp_cells: float = 0.25, wall_lo=-jnp.inf, wall_hi=jnp.inf):

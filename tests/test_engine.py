@@ -156,6 +156,23 @@ def test_shape_gradient_matches_finite_difference(kind):
     np.testing.assert_allclose(on_nodes(base, dw), fd, rtol=0, atol=1e-8 / h)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_gimp_per_node_regimes_equal_the_general_kernel(dtype):
+    """``_shapes._gimp`` evaluates each stencil node with only the regimes it can be in (a speed
+    measure, docs/performance.md "Stencil layout"); it must equal ``_gimp_kernel`` at the same node
+    distances bit for bit, for ppc 1-4 (lp = 1/2 ... 1/8 cell), at random positions and on the
+    lattice's knife edges (nodes, half-cells, sixths and quarters of a cell)."""
+    rng = np.random.default_rng(5)
+    edges = [np.arange(3, 40, step) for step in (0.5, 1 / 6, 0.25)]
+    xi = np.concatenate([rng.uniform(3, 40, 20000)] + edges)
+    xi = jnp.asarray(xi.astype(dtype))
+    for lp in (0.5, 0.25, 1 / 6, 0.125):
+        base, w, dw = _shapes._gimp(xi, lp)
+        r = xi[:, None] - (base[:, None] + jnp.arange(3.0, dtype=xi.dtype)[None, :])
+        w_ref, dw_ref = _shapes._gimp_kernel(r, lp)
+        assert np.array_equal(np.asarray(w), np.asarray(w_ref)) and np.array_equal(np.asarray(dw), np.asarray(dw_ref))
+
+
 @pytest.mark.parametrize("kind", SHAPES)
 @pytest.mark.parametrize("dim", [2, 3])
 def test_stencil_tensor_product_identities(kind, dim):
