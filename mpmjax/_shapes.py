@@ -175,21 +175,19 @@ def _boundary_modified(kind, xi, wall_lo, wall_hi):
 def _gimp_kernel(r, lp):
     """uGIMP weight and derivative for r = x_p - x_i in cell units, half-width lp (cells)."""
     a = jnp.abs(r)
-    s = jnp.sign(r)
-    w1 = 1.0 - (r * r + lp * lp) / (2.0 * lp)
-    w2 = 1.0 - a
-    w3 = (1.0 + lp - a) ** 2 / (4.0 * lp)
-    w = jnp.where(a < lp, w1, jnp.where(a < 1.0 - lp, w2, jnp.where(a < 1.0 + lp, w3, 0.0)))
-    d1 = -r / lp
-    d2 = -s
-    d3 = -s * (1.0 + lp - a) / (2.0 * lp)
-    dw = jnp.where(a < lp, d1, jnp.where(a < 1.0 - lp, d2, jnp.where(a < 1.0 + lp, d3, 0.0)))
-    return w, dw
+    w_in, d_in = _gimp_inner(r, lp)
+    w_out, d_out = _gimp_outer(a, lp)
+    return jnp.where(a < lp, w_in, w_out), jnp.where(a < lp, d_in, jnp.sign(r) * d_out)
+
+
+def _gimp_inner(r, lp):
+    """uGIMP weight and derivative at |r| < lp, where the particle covers the node."""
+    return 1.0 - (r * r + lp * lp) / (2.0 * lp), -r / lp
 
 
 def _gimp_outer(a, lp):
-    """uGIMP weight and derivative (with respect to r) at distance a >= 1/2 cell, r = a > 0: the
-    linear and the outer regime of ``_gimp_kernel`` (for r = -a the derivative changes sign)."""
+    """uGIMP weight and derivative (with respect to r, for r = a > 0; for r = -a it changes sign) at
+    distance a >= lp, beyond the inner regime: the linear and the outer regime, then 0."""
     w = jnp.where(a < 1.0 - lp, 1.0 - a, jnp.where(a < 1.0 + lp, (1.0 + lp - a) ** 2 / (4.0 * lp), 0.0))
     d = jnp.where(a < 1.0 - lp, -1.0, jnp.where(a < 1.0 + lp, -(1.0 + lp - a) / (2.0 * lp), 0.0))
     return w, d
@@ -206,8 +204,9 @@ def _gimp(xi, lp):
     f = xi - base
     r1 = f - 1.0
     a1 = jnp.abs(r1)
-    w1 = jnp.where(a1 < lp, 1.0 - (r1 * r1 + lp * lp) / (2.0 * lp), 1.0 - a1)
-    d1 = jnp.where(a1 < lp, -r1 / lp, -jnp.sign(r1))
+    w_in, d_in = _gimp_inner(r1, lp)
+    w1 = jnp.where(a1 < lp, w_in, 1.0 - a1)
+    d1 = jnp.where(a1 < lp, d_in, -jnp.sign(r1))
     w0, d0 = _gimp_outer(f, lp)
     w2, d2 = _gimp_outer(2.0 - f, lp)
     return base, jnp.stack([w0, w1, w2], axis=-1), jnp.stack([d0, d1, -d2], axis=-1)
