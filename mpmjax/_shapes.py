@@ -60,10 +60,9 @@ SUPPORT = {"linear": 1.0, "gimp": 1.5, "quadratic": 1.5, "cubic": 2.0, "quadrati
 APIC_D_FACTOR = {"quadratic": 0.25, "cubic": 1.0 / 3.0, "quadratic_bm": 0.25, "cubic_bm": 1.0 / 3.0}
 # Kinds whose 1-D weights are costly piecewise functions (a chain of selects per node).  The stencil
 # (``_transfer._Stencil``) gathers their per-node values, so XLA computes them once; the other kinds'
-# values are broadcast, which XLA fuses and recomputes per stencil node, cheaper than the gather.
-# dambreak-lab, 300 steps, CPU s, gathered / broadcast (docs/performance.md, "Stencil layout"): cubic
-# 0.77 / 1.13; quadratic 0.52 / 0.49, quadratic_bm 0.64 / 0.58, cubic_bm 1.02 / 0.93, linear 0.22 / 0.22;
-# gimp 0.43 / 0.66 with the general kernel, and broadcast wins (0-8 %) with the per-node one (``_gimp``).
+# values are broadcast, which XLA fuses and recomputes per stencil node, cheaper than the gather.  The
+# measured choice per kind (GIMP broadcast with its per-node kernel, ``_gimp``): docs/performance.md,
+# "Stencil layout".
 PIECEWISE = frozenset({"cubic"})
 # boundary-modified kind -> the plain B-spline it modifies
 BOUNDARY_MODIFIED = {"quadratic_bm": "quadratic", "cubic_bm": "cubic"}
