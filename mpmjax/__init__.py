@@ -21,7 +21,11 @@ Public API (modules are private; names are re-exported here):
   ``runout_vs_time``, ``animate``)
 """
 
-from . import plotting  # imports matplotlib only when a plot is made
+from ._fusion import prefer_xla_reductions
+
+prefer_xla_reductions()  # before any JAX computation starts the backends (docs/performance.md, "Fusion boundaries")
+
+from . import plotting  # noqa: E402  (imports matplotlib only when a plot is made)
 from ._build import Setup, build, make_params, time_step_limits
 from ._constitutive import tait_pressure
 from ._driver import Interrupted, run_scene

@@ -3,7 +3,8 @@
 ``simulate(scene, state, params)`` is the differentiable path: an outer scan over
 the ``n_frames`` saved frames and an inner scan over ``steps_per_frame`` steps.
 The inner chunk is wrapped in ``jax.checkpoint``, so reverse-mode memory grows with
-the number of frames (plus one chunk's residuals), not with the number of steps.
+the number of frames (plus one chunk's states), not with the number of steps; a run whose
+every step's state fits in ``STORE_STATES_BYTES`` keeps them all instead and is not recomputed.
 There is no ``while_loop`` on this path.
 
 ``make_advance(scene)`` returns the jitted one-frame advance used by the command line,
@@ -36,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._fusion import on_cpu
 from ._scene import Params, Scene, State
 from ._shard import AXIS
 from ._slab import make_slab_advance
@@ -60,21 +62,46 @@ def frame_of(state: State) -> Frame:
     return Frame(state.x, state.v, state.J, state.mu, state.internal, state.active, state.t)
 
 
-def make_chunk(scene: Scene, n_steps: int | None = None):
+# Reverse mode through ``simulate`` keeps every step's input state, instead of recomputing each
+# chunk once more, when those states take at most this many bytes (per run: a vmap batch of B
+# runs holds B times as much): 1000 steps of the default scene (3600 particles, 238 kB a state)
+# take 238 MB.  docs/performance.md, "Fusion boundaries": the gradient then costs 3.5-3.7 forward
+# runs instead of 4.4.
+STORE_STATES_BYTES = 512 * 2**20
+
+
+def make_chunk(scene: Scene, n_steps: int | None = None, recompute: bool = True):
     """``chunk(state, params) -> state``: ``n_steps`` (default steps_per_frame) steps by
-    ``lax.scan``, wrapped in ``jax.checkpoint``."""
+    ``lax.scan``.
+
+    Reverse mode: with ``recompute`` (the default) the chunk is wrapped in ``jax.checkpoint``,
+    so only its input is kept and its steps run once more in the reverse pass; without, the
+    input state of every step is kept instead (n_steps states of memory, one forward pass of
+    the chunk less).  On XLA:CPU, and without ``recompute`` on any backend, each step is
+    checkpointed too (``nothing_saveable``): the reverse pass recomputes the step from its input
+    state instead of storing the step's ~100 intermediate arrays (docs/performance.md, "Fusion
+    boundaries": on the CPU the gradient takes 0.7x the CPU time it took storing them).
+    Slab decomposition (``_slab``) always recomputes its chunk."""
     length = scene.steps_per_frame if n_steps is None else n_steps
     if scene.devices > 1 and scene.decomposition == "slab":  # slabs migrate particles between steps: _slab's own scan
         return jax.checkpoint(make_slab_advance(scene, make_step(scene, AXIS), length))
     step = make_step(scene)
 
     def chunk(state, params):
+        per_step = on_cpu() or not recompute
+        one = jax.checkpoint(step, policy=jax.checkpoint_policies.nothing_saveable) if per_step else step
+
         def body(s, _):
-            return step(s, params), None
+            return one(s, params), None
 
         return jax.lax.scan(body, state, None, length=length)[0]
 
-    return jax.checkpoint(chunk)
+    return jax.checkpoint(chunk) if recompute else chunk
+
+
+def state_bytes(state: State) -> int:
+    """Bytes of one state (one run's; the leaves' sizes, traced or not)."""
+    return sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in jax.tree.leaves(state))
 
 
 def simulate(scene: Scene, state: State, params: Params, n_frames: int | None = None):
@@ -83,9 +110,12 @@ def simulate(scene: Scene, state: State, params: Params, n_frames: int | None = 
     Returns ``(final_state, frames)`` where ``frames`` is a ``Frame`` whose arrays have a
     leading axis of length n_frames (the state *after* each frame).  Use under ``jit``
     with ``scene`` static, e.g. ``jax.jit(simulate, static_argnums=(0, 3))``.
+    In reverse mode each frame's chunk is recomputed from its input state unless the input
+    states of all the run's steps fit in ``STORE_STATES_BYTES`` (then they are kept: ``make_chunk``).
     """
-    chunk = make_chunk(scene)
     nf = scene.n_frames if n_frames is None else n_frames
+    kept = nf * scene.steps_per_frame * state_bytes(state)
+    chunk = make_chunk(scene, recompute=kept > STORE_STATES_BYTES)
 
     def outer(s, _):
         s = chunk(s, params)

@@ -48,6 +48,7 @@ from ._boundary import (
     terrain_velocity,
 )
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
+from ._fusion import boundary, derivative_boundary
 from ._scene import Params, Scene, State
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
@@ -136,8 +137,11 @@ def make_step(scene: Scene, axis: str | None = None):
             v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
             v_new = jnp.where(grid.nodes(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
 
-        # G2P
-        v_pic, v_p, C, L = g2p(st, v_new, v_old, state.v)
+        # G2P: the nodal velocity is formed once, not inside the gather for every stencil node it
+        # reaches; under differentiation the G2P's results too, so the transposed per-particle
+        # update is formed once, not for every gathered stencil entry (_fusion)
+        v_new = boundary(v_new)
+        v_pic, v_p, C, L = derivative_boundary(g2p(st, v_new, v_old, state.v))
         x = state.x + dt * v_pic
 
         # particle-level walls: push back out, remove inward normal velocity.  Column by column over
