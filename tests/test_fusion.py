@@ -14,6 +14,7 @@ import sys
 
 import jax
 import jax.numpy as jnp
+import jaxlib
 import numpy as np
 import pytest
 from conftest import COUSSOT_BASE
@@ -95,7 +96,7 @@ def _probe(flags, **extra):
     return out.stdout.strip().splitlines()[-1]
 
 
-@pytest.mark.skipif(not __import__("jaxlib").__version__.startswith(_fusion.YNN_FLAG_VERSIONS), reason="jaxlib without the flag")
+@pytest.mark.skipif(not jaxlib.__version__.startswith(_fusion.YNN_FLAG_VERSIONS), reason="jaxlib without the flag")
 def test_import_turns_ynn_reductions_off_unless_the_user_set_the_flag():
     # a fresh process: importing mpmjax sets the flag, and a compiled reduction has no YNNPACK call
     assert _probe(None) == f"{_fusion.YNN_FLAG!r} False"
