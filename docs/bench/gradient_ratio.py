@@ -59,6 +59,7 @@ line = dict(code=os.environ.get("CODE", ""), steps=steps, chunk=chunk_n, n_parti
 for name in ("forward", "grad", "jvp"):
     line[name + "_wall_s"], line[name + "_cpu_s"] = best[name]
     line[name + "_compile_cpu_s"] = fns[name + "_compile_cpu_s"]
+    line[name + "_xla_temp_mib"] = fns[name].memory_analysis().temp_size_in_bytes / 2**20
 line["grad_over_forward_wall"] = best["grad"][0] / best["forward"][0]
 line["grad_over_forward_cpu"] = best["grad"][1] / best["forward"][1]
 line["jvp_over_forward_wall"] = best["jvp"][0] / best["forward"][0]
