@@ -94,5 +94,8 @@ def prefer_xla_reductions() -> bool:
     keep = os.environ.get("MPMJAX_KEEP_XLA_FLAGS", "") not in ("", "0")
     if keep or xla_bridge.backends_are_initialized() or not jaxlib.__version__.startswith(YNN_FLAG_VERSIONS):
         return False
-    os.environ["XLA_FLAGS"] = (flags + " " + YNN_FLAG).strip()
+    if flags.strip() and not flags.lstrip().startswith("--"):  # XLA reads such a value as a flag file's name
+        return False
+    # first: XLA stops reading flags at a word that does not start with "--"
+    os.environ["XLA_FLAGS"] = (YNN_FLAG + " " + flags).strip()
     return True

@@ -103,6 +103,9 @@ def test_import_turns_ynn_reductions_off_unless_the_user_set_the_flag():
     # the user's own value of the flag is left as it is
     own = "--xla_cpu_use_xnnpack=true --xla_cpu_experimental_ynn_fusion_type="
     assert _probe(own) == f"{own!r} False"
+    # put first: XLA stops reading its flags at a word without "--" (here a thread option of another library)
+    other = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+    assert _probe(other) == f"{_fusion.YNN_FLAG + ' ' + other!r} False"
     # MPMJAX_KEEP_XLA_FLAGS=1 keeps XLA's defaults: YNNPACK reductions on
     assert _probe(None, MPMJAX_KEEP_XLA_FLAGS="1") == "None True"
     # here the backends are running: the flags are read, so nothing is changed
