@@ -58,7 +58,7 @@ import numpy as np
 
 from . import _shapes
 from ._constitutive import tait_pressure
-from ._fusion import derivative_boundary
+from ._fusion import boundary, derivative_boundary
 from ._scene import Params, Scene, State, box_wall_nodes
 from ._shard import Replicated
 
@@ -198,9 +198,10 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
         grid = whole if grid is None else grid
         mat = params.material
         st = _Stencil(scene, state.x)
-        st.idx = grid.local(st.idx)
-        # under differentiation the stencil is formed once, not inside each fusion that reads it (_fusion)
-        st.idx, st.w, st.dw, st.r = derivative_boundary((st.idx, st.w, st.dw, st.r))
+        # the node indices are formed once, not inside the channels' fusion and the scatter that read
+        # them; under differentiation the weights, their gradients and the offsets too (_fusion)
+        st.idx = boundary(grid.local(st.idx))
+        st.w, st.dw, st.r = derivative_boundary((st.w, st.dw, st.r))
         mass_p = mat.rho * state.vol0 * state.active
         vol = state.vol0 * state.J * state.active
         p = tait_pressure(state.J, mat.kappa)
