@@ -194,6 +194,8 @@ def make_step(scene: Scene, axis: str | None = None):
             phi_p = packing_fraction(scene, mass, st, params.material.rho, grid.nodes(fill, dtp))
             J = jnp.minimum(J, (1.0 + cap) / jnp.maximum(phi_p, 1e-6))
         dprime, dd = shear_measures(L, dim)
+        # under differentiation: the rheology's inputs and results formed once (_fusion)
+        J, L, dprime, dd = derivative_boundary((J, L, dprime, dd))
         shear = shear_rate(dd, scene.shear_measure)
         gate = state.gate
         if scene.gate is not None:
@@ -204,6 +206,7 @@ def make_step(scene: Scene, axis: str | None = None):
             gate = gate | (state.active & beyond)
         mu, internal = rheo.viscosity(params.material, shear, state.internal, dt, gate)
         tau = deviatoric_update(state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update)
+        mu, internal, tau = derivative_boundary((mu, internal, tau))
 
         # loss detection: stencil outside the grid, or a non-finite state
         inside = jnp.all(per[None, :] | ((x >= safe_lo[None, :]) & (x <= safe_hi[None, :])), axis=1)

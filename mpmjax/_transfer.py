@@ -219,7 +219,10 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
         else:
             force = -vol[:, None, None] * _bmv(sigma, st.dw)
             chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
-        g = grid.reduce(scatter(st.idx, chans, grid.n_nodes))
+        # under differentiation the channels and the grid sums are formed once, and so are their
+        # cotangents in the reverse pass (the grid's before the transposed scatter gathers it; _fusion)
+        chans = derivative_boundary(chans)
+        g = derivative_boundary(grid.reduce(scatter(st.idx, chans, grid.n_nodes)))
         return g[:, 0], g[:, 1 : 1 + dim], (None if mls else g[:, 1 + dim :]), st
 
     return p2g
