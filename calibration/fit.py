@@ -91,8 +91,8 @@ class FitResult(NamedTuple):
     evaluations: dict | None = None
 
 
-# "auto" gradient: forward mode up to this many free parameters (measured break-even ~8.8, see fit())
-FORWARD_MODE_MAX_PARAMS = 8
+# "auto" gradient: forward mode up to this many free parameters (measured break-even ~2.7, see fit())
+FORWARD_MODE_MAX_PARAMS = 2
 
 
 def loss_function(experiments, pset, gradient: str = "reverse"):
@@ -146,9 +146,9 @@ def forward_value_and_grad(f):
 def forward_mode_gradient(f):
     """``f(z) -> scalar`` (z a 1-D vector) whose reverse-mode rule is computed in forward mode:
     ``jax.jvp`` along every unit vector, batched by ``vmap`` (the primal is computed once).
-    A reverse pass through the checkpointed MPM scan costs 7-8.5 forward runs on CPU
-    (docs/calibration.md), a tangent about 1.2-1.4 more, so for a few parameters this is the
-    cheaper gradient; the values agree to rounding."""
+    A reverse pass through the MPM scan costs about 4.3 forward runs on CPU (docs/calibration.md),
+    a tangent about 1.5 more, so for one or two parameters this is the cheaper gradient; the
+    values agree to rounding."""
 
     value_and_grad = forward_value_and_grad(f)
 
@@ -367,9 +367,11 @@ def fit(
 
     gradient: ``"reverse"``, ``"forward"`` (see :func:`forward_mode_gradient`) or ``"auto"``
     (default): forward mode for up to ``FORWARD_MODE_MAX_PARAMS`` free parameters.  Measured on
-    the twin scene (idle 2-core CPU, float64): value and gradient cost 3.1 loss evaluations in
-    forward mode against 8.2 in reverse mode for 2 parameters, 5.3 against 8.0 for 5; about
-    1.7 + 0.73 k against 8.1, so forward mode wins up to k = 8.
+    the twin scene (2-core CPU, float64; docs/bench/gradient_modes.py): value and gradient cost
+    3.1-3.3 loss evaluations in forward mode against 4.2-4.4 in reverse mode for 2 parameters,
+    7.7 against 4.2-4.4 for 5; about 0.1 + 1.5 k against 4.3, so forward mode wins up to k = 2.
+    (Before the reverse pass's fusion boundaries and kept states, docs/performance.md: reverse
+    mode cost 7.6-8.2 and forward mode won up to k = 8.)
 
     The model is compiled once (:class:`Objective`) and called from the optimiser's update, which
     is compiled apart; the starts step in lockstep, one update call each (a stopped start costs
