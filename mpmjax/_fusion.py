@@ -59,8 +59,8 @@ def _derivative_boundary(tree):
 def _derivative_boundary_jvp(primals, tangents):
     (tree,), (t_tree,) = primals, tangents
     # integer leaves (stencil indices) have float0 tangents: they pass as they are
-    inexact = [jnp.issubdtype(a.dtype, jnp.inexact) for a in jax.tree.leaves(t_tree)]
     leaves, treedef = jax.tree.flatten(t_tree)
+    inexact = [jnp.issubdtype(a.dtype, jnp.inexact) for a in leaves]
     moved = iter(_pass([a for a, f in zip(leaves, inexact) if f]))
     t_out = jax.tree.unflatten(treedef, [next(moved) if f else a for a, f in zip(leaves, inexact)])
     return _pass(tree), t_out

@@ -65,8 +65,8 @@ def frame_of(state: State) -> Frame:
 # Reverse mode through ``simulate`` keeps every step's input state, instead of recomputing each
 # chunk once more, when those states take at most this many bytes (per run: a vmap batch of B
 # runs holds B times as much): 1000 steps of the default scene (3600 particles, 238 kB a state)
-# take 238 MB.  docs/performance.md, "Fusion boundaries": the gradient then costs 3.5-3.7 forward
-# runs instead of 4.4.
+# take 238 MB.  It saves one forward pass of the run (docs/performance.md, "Fusion boundaries":
+# 4.44-4.47 -> 3.64-3.86 forward runs for that gradient when it was added).
 STORE_STATES_BYTES = 512 * 2**20
 
 
