@@ -5,6 +5,7 @@ the CPU this is where much of the step's time went (docs/performance.md, "Fusion
 
 * the G2P gather read the nodal velocity through the whole grid update (mass division, gravity,
   every wall), recomputed for each gathered stencil node;
+* the P2G's channel fusion and its scatter each rebuilt the stencil's node indices;
 * in the reverse pass, the cotangent chain of the per-particle update (velocity gradient, J,
   rheology, stress) was fused into the cotangent of each gathered stencil entry, and the
   stencil's weights were rebuilt in every fusion of the transposed transfers.
