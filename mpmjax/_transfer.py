@@ -53,12 +53,13 @@ from __future__ import annotations
 
 import itertools
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from . import _shapes
 from ._constitutive import tait_pressure
-from ._fusion import boundary, derivative_boundary
+from ._fusion import boundary, derivative_boundary, on_cpu
 from ._scene import Params, Scene, State, box_wall_nodes
 from ._shard import Replicated
 
@@ -88,9 +89,20 @@ def _outer_sum(a, b):
 
 
 class _Stencil:
-    """Per-particle stencil data: flat node indices, weights, gradients and offsets."""
+    """Per-particle stencil data: node indices, weights, gradients and offsets.
 
-    def __init__(self, scene: Scene, x):
+    ``idx`` (n, S): flat global node indices (C order over the k^dim block of each particle).
+    ``rows``: whether the transfers (``gather``, ``scatter``) read and write the grid by rows: the
+    stencil is k^(dim-1) rows of k consecutive nodes along the last axis, and XLA:CPU scatters and
+    gathers a whole row per index, 2.5x faster than one node per index (docs/performance.md, "Row
+    windows").  The grid is then seen with P = k - 1 extra nodes at both ends of each line along the
+    last axis; a row starting there is folded back onto the nodes the flat indices name (clipped, or
+    wrapped on a periodic axis), so both layouts give the same sums.  Default: on the CPU only (the
+    GPU path is the flat one, unmeasured with rows).  ``localise`` makes the indices those of a
+    device's grid (``_shard.Replicated``, ``_slab.Slab``) before the transfers use them.
+    """
+
+    def __init__(self, scene: Scene, x, rows: bool | None = None):
         dim, h = scene.dim, scene.h
         xi = (x - jnp.asarray(scene.grid_origin, x.dtype)[None, :]) / h
         if scene.shape in _shapes.BOUNDARY_MODIFIED:
@@ -122,6 +134,7 @@ class _Stencil:
             return jnp.take(a, offs[:, d], axis=1) if gather else spread(a, d)
 
         idx = 0
+        line = 0
         w = 1.0
         r = []
         for d in range(dim):
@@ -133,6 +146,8 @@ class _Stencil:
             else:
                 node = jnp.clip(node, 0, scene.grid_shape[d] - 1)
             idx = idx + spread(node * int(strides[d]), d)
+            if d < dim - 1:  # the row's line: its flat index at last-axis index 0, (n, k^(dim-1))
+                line = line + spread(node * int(strides[d]), d)[:, ::k]
         wd = [weight(w1[:, d, :], d) for d in range(dim)]
         for d in range(dim):
             w = w * wd[d]
@@ -147,7 +162,74 @@ class _Stencil:
         self.w = w  # (n, S)
         self.dw = jnp.stack(grads, axis=-1)  # (n, S, dim)
         self.r = jnp.stack(r, axis=-1)  # (n, S, dim)
-        self.S = S
+        self.S, self.k = S, k
+        # rows: where the last axis's nodes base .. base + k - 1 sit in a line padded by P = k - 1 nodes at
+        # both ends (a start in [0, n_last + P - 1]), and which line node p of the padded line stands for
+        n_last, P = scene.grid_shape[-1], k - 1
+        last = base[:, -1]
+        if scene.periodic[-1]:
+            last = jnp.mod(last, n_last)
+            self._fold = np.mod(np.arange(n_last + 2 * P) - P, n_last)
+        else:  # every node below 0 (above n_last - 1) clips to 0 (n_last - 1), as the flat indices do
+            last = jnp.clip(last, -P, n_last - 1)
+            self._fold = np.clip(np.arange(n_last + 2 * P) - P, 0, n_last - 1)
+        self.rows = bool(on_cpu() and dim > 1) if rows is None else rows
+        self._line, self._start, self._n_last = line, (last + P)[:, None], n_last
+        if self.rows:  # (n, k^(dim-1)): each row's first node in the padded grid, whole grid
+            self._rows = self._padded(line // n_last)
+
+    def _padded(self, lines):
+        return lines * (self._n_last + 2 * (self.k - 1)) + self._start
+
+    def localise(self, grid):
+        """The indices of the grid layout ``grid`` holds (``grid.local``), formed once: not inside the
+        channels' fusion and the scatter that read them (``_fusion.boundary``)."""
+        if self.rows:
+            self.idx = None  # the global flat indices no longer name this device's nodes
+            self._rows = boundary(self._padded(grid.local(self._line) // self._n_last))
+        else:
+            self.idx = boundary(grid.local(self.idx))
+        return self
+
+    def gather(self, a):
+        """Per-node ``a`` (N, ...) -> (n, S, ...): each particle's stencil nodes."""
+        if not self.rows:
+            return a[self.idx]
+        k, n_last, n = self.k, self._n_last, self._rows.shape[0]
+        tail = a.shape[1:]
+        lines = a.reshape((-1, n_last) + tail)
+        P = k - 1
+        ends = [lines[:, i : i + 1] for i in self._fold]  # what each padded position stands for
+        padded = jnp.concatenate(ends[:P] + [lines] + ends[P + n_last :], axis=1).reshape((-1,) + tail)
+        dn = jax.lax.GatherDimensionNumbers(
+            offset_dims=tuple(range(2, 3 + len(tail))), collapsed_slice_dims=(), start_index_map=(0,)
+        )
+        out = jax.lax.gather(
+            padded, self._rows[..., None], dn, (k,) + tail, mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
+        )
+        return out.reshape((n, self.S) + tail)
+
+    def scatter(self, vals, n_nodes: int):
+        """grid (n_nodes, C) with grid[node] += vals[p, s] over each particle's stencil nodes (``vals``
+        (n, S, C); the reference is ``scatter_add``)."""
+        if not self.rows:
+            return scatter_add(self.idx, vals, n_nodes)
+        k, n_last, C = self.k, self._n_last, vals.shape[-1]
+        P = k - 1
+        n_lines = n_nodes // n_last
+        g = jnp.zeros((n_lines * (n_last + 2 * P), C), vals.dtype)
+        dn = jax.lax.ScatterDimensionNumbers(
+            update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
+        )
+        g = jax.lax.scatter_add(
+            g, self._rows.reshape(-1, 1), vals.reshape(-1, k, C), dn, mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
+        )
+        g = g.reshape(n_lines, n_last + 2 * P, C)
+        out = g[:, P : P + n_last]
+        for i in list(range(P)) + list(range(P + n_last, n_last + 2 * P)):  # the padding folded back
+            t = int(self._fold[i])
+            out = out.at[:, t].add(g[:, i])
+        return out.reshape(n_nodes, C)
 
 
 def first_plane(scene: Scene, x):
@@ -167,14 +249,14 @@ def scatter_add(idx, vals, n_nodes: int):
     """The reference scatter: grid (n_nodes, C) with grid[idx[p, s]] += vals[p, s] (XLA's scatter-add).
 
     ``idx`` (n, S) flat node indices, ``vals`` (n, S, C).  On the CPU XLA runs the updates one at a
-    time on one core (docs/performance.md, "P2G alternatives"); ``make_p2g`` takes another
-    ``scatter`` of the same signature for the alternatives measured there."""
+    time on one core (docs/performance.md, "P2G alternatives"); on the CPU the transfers scatter by
+    rows instead (``_Stencil``)."""
     C = vals.shape[-1]
     grid = jnp.zeros((n_nodes, C), vals.dtype)
     return grid.at[idx.reshape(-1)].add(vals.reshape(-1, C))
 
 
-def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
+def make_p2g(scene: Scene, axis: str | None = None, flat=None):
     """Returns ``p2g(state, params, grid=None) -> (mass (N,), momentum (N, dim), force (N, dim), stencil)``;
     with ``scene.force == "mls"`` the force is None (the stress impulse is in the momentum).
 
@@ -182,7 +264,8 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
     stencil's indices are made local to it and the partial sums reduced by it, so N is its node
     count.  Default: the whole grid, reduced over ``axis`` when given (inside ``shard_map`` over
     particles, ``_shard``, each device's partial grid is summed by ``psum``).
-    ``scatter(idx, vals, n_nodes) -> grid``: the scatter-add (default ``scatter_add``).
+    ``flat(idx, vals, n_nodes) -> grid``: a scatter-add by flat node indices in place of the stencil's
+    own (``_Stencil.scatter``; the alternatives measured in docs/performance.md, "P2G alternatives").
     """
     dim = scene.dim
     apic = scene.transfer == "apic"
@@ -197,10 +280,8 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
     def p2g(state: State, params: Params, grid=None):
         grid = whole if grid is None else grid
         mat = params.material
-        st = _Stencil(scene, state.x)
-        # the node indices are formed once, not inside the channels' fusion and the scatter that read
-        # them; under differentiation the weights, their gradients and the offsets too (_fusion)
-        st.idx = boundary(grid.local(st.idx))
+        st = _Stencil(scene, state.x, rows=False if flat else None).localise(grid)
+        # under differentiation the weights, their gradients and the offsets are formed once (_fusion)
         st.w, st.dw, st.r = derivative_boundary((st.w, st.dw, st.r))
         mass_p = mat.rho * state.vol0 * state.active
         vol = state.vol0 * state.J * state.active
@@ -222,7 +303,8 @@ def make_p2g(scene: Scene, axis: str | None = None, scatter=scatter_add):
         # under differentiation the channels and the grid sums are formed once, and so are their
         # cotangents in the reverse pass (the grid's before the transposed scatter gathers it; _fusion)
         chans = derivative_boundary(chans)
-        g = derivative_boundary(grid.reduce(scatter(st.idx, chans, grid.n_nodes)))
+        g = st.scatter(chans, grid.n_nodes) if flat is None else flat(st.idx, chans, grid.n_nodes)
+        g = derivative_boundary(grid.reduce(g))
         return g[:, 0], g[:, 1 : 1 + dim], (None if mls else g[:, 1 + dim :]), st
 
     return p2g
@@ -250,7 +332,7 @@ def make_g2p(scene: Scene):
     mls = scene.force == "mls"
 
     def g2p(st: _Stencil, v_new, v_old, v):
-        vi = v_new[st.idx]  # (n, S, dim)
+        vi = st.gather(v_new)  # (n, S, dim)
         v_pic = _wsum(st.w, vi)
         L = None if mls else _outer_sum(vi, st.dw)
         if scene.transfer == "apic":
@@ -265,7 +347,7 @@ def make_g2p(scene: Scene):
             else:
                 C = L
         else:
-            dv = _wsum(st.w, vi - v_old[st.idx])
+            dv = _wsum(st.w, vi - st.gather(v_old))
             v_p = scene.flip_blend * (v + dv) + (1.0 - scene.flip_blend) * v_pic
             C = jnp.zeros_like(L)
         return v_pic, v_p, C, L
@@ -283,8 +365,8 @@ def packing_fraction(scene: Scene, mass, st, rho, fill):
     """
     dtp = mass.dtype
     phi_node = mass / (rho * scene.h**scene.dim)
-    phi_p = jnp.sum(st.w * phi_node[st.idx], axis=1)
-    fill_p = jnp.sum(st.w * jnp.asarray(fill, dtp)[st.idx], axis=1)
+    phi_p = jnp.sum(st.w * st.gather(phi_node), axis=1)
+    fill_p = jnp.sum(st.w * st.gather(jnp.asarray(fill, dtp)), axis=1)
     return phi_p / jnp.maximum(fill_p, 1e-6)
 
 
@@ -313,9 +395,9 @@ def volume_average(scene: Scene, st: _Stencil, mass_p, q, inv_m, has, grid=None)
     (default: the whole grid on one device); the nodal sums are reduced by it.
     """
     grid = Replicated(scene.n_nodes) if grid is None else grid
-    num = grid.reduce(scatter_add(st.idx, (mass_p[:, None] * st.w)[:, :, None] * q[:, None, :], grid.n_nodes))
+    num = grid.reduce(st.scatter((mass_p[:, None] * st.w)[:, :, None] * q[:, None, :], grid.n_nodes))
     q_node = num * inv_m[:, None]
-    wsum = jnp.sum(st.w * has[st.idx].astype(q.dtype), axis=1)
+    wsum = jnp.sum(st.w * st.gather(has).astype(q.dtype), axis=1)
     ok = wsum > 0.0
-    qbar = _wsum(st.w, q_node[st.idx]) / jnp.where(ok, wsum, 1.0)[:, None]
+    qbar = _wsum(st.w, st.gather(q_node)) / jnp.where(ok, wsum, 1.0)[:, None]
     return jnp.where(ok[:, None], qbar, q)

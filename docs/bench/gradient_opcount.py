@@ -118,8 +118,8 @@ class _cut:
             orig = _transfer._Stencil
 
             class Frozen(orig):
-                def __init__(self, scene, x):
-                    super().__init__(scene, sg(x))
+                def __init__(self, scene, x, **kw):
+                    super().__init__(scene, sg(x), **kw)
 
             _transfer._Stencil = Frozen
             return self.scene

@@ -139,7 +139,7 @@ def p2g_codes(setup):
     state2 = jax.tree_util.tree_map(lambda a, s: jax.device_put(a, NamedSharding(mesh, s)), setup.state, spec)
     codes["sharded"] = (jax.jit(sharded), state2)
     if wp is not None:
-        codes["warp"] = (jax.jit(grid_of(make_p2g(sc, scatter=warp_scatter))), setup.state)
+        codes["warp"] = (jax.jit(grid_of(make_p2g(sc, flat=warp_scatter))), setup.state)
     return codes
 
 
@@ -194,7 +194,7 @@ def bench_step(rounds, steps=200):
         if wp is not None:
             # the step with the Warp scatter in its P2G: make_step's make_p2g swapped for this measurement only
             real = _step.make_p2g
-            _step.make_p2g = lambda scene, axis=None: real(scene, axis, scatter=warp_scatter)
+            _step.make_p2g = lambda scene, axis=None: real(scene, axis, flat=warp_scatter)
             try:
                 codes["warp"] = (jax.jit(make_chunk(sc, steps)), setup.state)
             finally:
