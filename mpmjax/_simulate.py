@@ -4,7 +4,8 @@
 the ``n_frames`` saved frames and an inner scan over ``steps_per_frame`` steps.
 The inner chunk is wrapped in ``jax.checkpoint``, so reverse-mode memory grows with
 the number of frames (plus one chunk's states), not with the number of steps; a run whose
-every step's state fits in ``STORE_STATES_BYTES`` keeps them all instead and is not recomputed.
+every step's state and saved values fit in ``STORE_STATES_BYTES`` keeps them all instead and is
+not recomputed.
 There is no ``while_loop`` on this path.
 
 ``make_advance(scene)`` returns the jitted one-frame advance used by the command line,
@@ -37,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._fusion import on_cpu
+from ._fusion import SAVED, on_cpu
 from ._scene import Params, Scene, State
 from ._shard import AXIS
 from ._slab import make_slab_advance
@@ -62,11 +63,12 @@ def frame_of(state: State) -> Frame:
     return Frame(state.x, state.v, state.J, state.mu, state.internal, state.active, state.t)
 
 
-# Reverse mode through ``simulate`` keeps every step's input state, instead of recomputing each
-# chunk once more, when those states take at most this many bytes (per run: a vmap batch of B
-# runs holds B times as much): 1000 steps of the default scene (3600 particles, 238 kB a state)
-# take 238 MB.  It saves one forward pass of the run (docs/performance.md, "Fusion boundaries":
-# 4.44-4.47 -> 3.64-3.86 forward runs for that gradient when it was added).
+# Reverse mode through ``simulate`` keeps every step's input state and saved values
+# (``residual_bytes``), instead of recomputing each chunk once more, when they take at most this
+# many bytes (per run: a vmap batch of B runs holds B times as much): 1000 steps of the default
+# scene (3600 particles, 238 kB a state, 186 kB saved) take 424 MB.  It saves one forward pass of
+# the run (docs/performance.md, "Fusion boundaries": 4.44-4.47 -> 3.64-3.86 forward runs for that
+# gradient when it was added).
 STORE_STATES_BYTES = 512 * 2**20
 
 
@@ -78,9 +80,11 @@ def make_chunk(scene: Scene, n_steps: int | None = None, recompute: bool = True)
     so only its input is kept and its steps run once more in the reverse pass; without, the
     input state of every step is kept instead (n_steps states of memory, one forward pass of
     the chunk less).  On XLA:CPU, and without ``recompute`` on any backend, each step is
-    checkpointed too (``nothing_saveable``): the reverse pass recomputes the step from its input
-    state instead of storing the step's ~100 intermediate arrays (docs/performance.md, "Fusion
-    boundaries": on the CPU the gradient takes 0.7x the CPU time it took storing them).
+    checkpointed too, saving only ``_fusion.SAVED`` (the grid sums and the velocity gradient,
+    ``residual_bytes``): the reverse pass recomputes the rest of the step from its input state
+    instead of storing the step's ~100 intermediate arrays (docs/performance.md, "Fusion
+    boundaries" and "Row windows and saved residuals": on the CPU the gradient takes 0.7x the CPU
+    time it took storing them all, and 0.83x that again with the two saved).
     Slab decomposition (``_slab``) always recomputes its chunk."""
     length = scene.steps_per_frame if n_steps is None else n_steps
     if scene.devices > 1 and scene.decomposition == "slab":  # slabs migrate particles between steps: _slab's own scan
@@ -89,7 +93,8 @@ def make_chunk(scene: Scene, n_steps: int | None = None, recompute: bool = True)
 
     def chunk(state, params):
         per_step = on_cpu() or not recompute
-        one = jax.checkpoint(step, policy=jax.checkpoint_policies.nothing_saveable) if per_step else step
+        policy = jax.checkpoint_policies.save_only_these_names(*SAVED)
+        one = jax.checkpoint(step, policy=policy) if per_step else step
 
         def body(s, _):
             return one(s, params), None
@@ -104,6 +109,14 @@ def state_bytes(state: State) -> int:
     return sum(int(np.prod(a.shape)) * np.dtype(a.dtype).itemsize for a in jax.tree.leaves(state))
 
 
+def residual_bytes(scene: Scene, state: State) -> int:
+    """Bytes the per-step checkpoint saves per step (``_fusion.SAVED``): the grid sums (mass,
+    momentum and, but with the MLS force, force on every node) and the velocity gradient (n, dim, dim)."""
+    itemsize = np.dtype(state.x.dtype).itemsize
+    channels = 1 + scene.dim * (1 if scene.force == "mls" else 2)
+    return (scene.n_nodes * channels + state.x.shape[0] * scene.dim**2) * itemsize
+
+
 def simulate(scene: Scene, state: State, params: Params, n_frames: int | None = None):
     """Run ``n_frames`` frames (default ``scene.n_frames``).  Pure and differentiable.
 
@@ -111,10 +124,11 @@ def simulate(scene: Scene, state: State, params: Params, n_frames: int | None = 
     leading axis of length n_frames (the state *after* each frame).  Use under ``jit``
     with ``scene`` static, e.g. ``jax.jit(simulate, static_argnums=(0, 3))``.
     In reverse mode each frame's chunk is recomputed from its input state unless the input
-    states of all the run's steps fit in ``STORE_STATES_BYTES`` (then they are kept: ``make_chunk``).
+    states of all the run's steps and their saved values fit in ``STORE_STATES_BYTES`` (then they
+    are kept: ``make_chunk``).
     """
     nf = scene.n_frames if n_frames is None else n_frames
-    kept = nf * scene.steps_per_frame * state_bytes(state)
+    kept = nf * scene.steps_per_frame * (state_bytes(state) + residual_bytes(scene, state))
     chunk = make_chunk(scene, recompute=kept > STORE_STATES_BYTES)
 
     def outer(s, _):

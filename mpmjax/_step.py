@@ -48,7 +48,7 @@ from ._boundary import (
     terrain_velocity,
 )
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
-from ._fusion import boundary, derivative_boundary
+from ._fusion import VELOCITY_GRADIENT, boundary, derivative_boundary, saved
 from ._scene import Params, Scene, State
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
@@ -139,9 +139,11 @@ def make_step(scene: Scene, axis: str | None = None):
 
         # G2P: the nodal velocity is formed once, not inside the gather for every stencil node it
         # reaches; under differentiation the G2P's results too, so the transposed per-particle
-        # update is formed once, not for every gathered stencil entry (_fusion)
+        # update is formed once, not for every gathered stencil entry (_fusion); in reverse mode the
+        # velocity gradient is kept, not recomputed (_fusion.saved, _simulate.make_chunk)
         v_new = boundary(v_new)
         v_pic, v_p, C, L = derivative_boundary(g2p(st, v_new, v_old, state.v))
+        L = saved(L, VELOCITY_GRADIENT)
         x = state.x + dt * v_pic
 
         # particle-level walls: push back out, remove inward normal velocity.  Column by column over

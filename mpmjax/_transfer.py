@@ -59,7 +59,7 @@ import numpy as np
 
 from . import _shapes
 from ._constitutive import tait_pressure
-from ._fusion import boundary, derivative_boundary, on_cpu
+from ._fusion import GRID_SUMS, boundary, derivative_boundary, on_cpu, saved
 from ._scene import Params, Scene, State, box_wall_nodes
 from ._shard import Replicated
 
@@ -173,7 +173,8 @@ class _Stencil:
         else:  # every node below 0 (above n_last - 1) clips to 0 (n_last - 1), as the flat indices do
             last = jnp.clip(last, -P, n_last - 1)
             self._fold = np.clip(np.arange(n_last + 2 * P) - P, 0, n_last - 1)
-        self.rows = bool(on_cpu() and dim > 1) if rows is None else rows
+        small = scene.n_nodes // n_last * (n_last + 2 * P) < 2**31  # int32 indices of the padded grid's nodes
+        self.rows = bool(on_cpu() and dim > 1 and small) if rows is None else rows
         self._line, self._start, self._n_last = line, (last + P)[:, None], n_last
         if self.rows:  # (n, k^(dim-1)): each row's first node in the padded grid, whole grid
             self._rows = self._padded(line // n_last)
@@ -204,9 +205,8 @@ class _Stencil:
         dn = jax.lax.GatherDimensionNumbers(
             offset_dims=tuple(range(2, 3 + len(tail))), collapsed_slice_dims=(), start_index_map=(0,)
         )
-        out = jax.lax.gather(
-            padded, self._rows[..., None], dn, (k,) + tail, mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
-        )
+        mode = jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
+        out = jax.lax.gather(padded, self._rows[..., None], dn, (k,) + tail, mode=mode)
         return out.reshape((n, self.S) + tail)
 
     def scatter(self, vals, n_nodes: int):
@@ -218,12 +218,13 @@ class _Stencil:
         P = k - 1
         n_lines = n_nodes // n_last
         g = jnp.zeros((n_lines * (n_last + 2 * P), C), vals.dtype)
+        # a (k, C) window per row.  A flat (k C) window scatters 2x faster alone, but under vmap XLA:CPU
+        # then forms the channels in a layout that costs a batch of 16 more than it saves (docs/performance.md)
         dn = jax.lax.ScatterDimensionNumbers(
             update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
         )
-        g = jax.lax.scatter_add(
-            g, self._rows.reshape(-1, 1), vals.reshape(-1, k, C), dn, mode=jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
-        )
+        mode = jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS
+        g = jax.lax.scatter_add(g, self._rows.reshape(-1, 1), vals.reshape(-1, k, C), dn, mode=mode)
         g = g.reshape(n_lines, n_last + 2 * P, C)
         out = g[:, P : P + n_last]
         for i in list(range(P)) + list(range(P + n_last, n_last + 2 * P)):  # the padding folded back
@@ -304,7 +305,8 @@ def make_p2g(scene: Scene, axis: str | None = None, flat=None):
         # cotangents in the reverse pass (the grid's before the transposed scatter gathers it; _fusion)
         chans = derivative_boundary(chans)
         g = st.scatter(chans, grid.n_nodes) if flat is None else flat(st.idx, chans, grid.n_nodes)
-        g = derivative_boundary(grid.reduce(g))
+        # in reverse mode the grid sums are kept, not recomputed (_fusion.saved, _simulate.make_chunk)
+        g = saved(derivative_boundary(grid.reduce(g)), GRID_SUMS)
         return g[:, 0], g[:, 1 : 1 + dim], (None if mls else g[:, 1 + dim :]), st
 
     return p2g

@@ -120,3 +120,25 @@ def test_state_leaves_are_what_state_bytes_counts():
     setup = m.build(m.validate(RAW))
     total = sum(np.asarray(a).nbytes for a in jax.tree.leaves(setup.state))
     assert _simulate.state_bytes(setup.state) == total
+
+
+@pytest.mark.parametrize("numerics", [{}, {"force": "mls", "shape": "quadratic"}])
+def test_the_per_step_checkpoint_saves_what_residual_bytes_counts(capsys, numerics):
+    """The values a checkpointed step saves beyond its input (reverse mode, two steps so that the
+    first step's result depends on mu0; the nodal force and MLS, whose grid has no force channels): once per step the grid sums and the velocity gradient,
+    the bytes ``_simulate.residual_bytes`` charges to the kept-states budget."""
+    setup = m.build(m.validate(dict(RAW, numerics=dict(RAW["numerics"], **numerics))))
+    one = jax.checkpoint(m.make_step(setup.scene), policy=jax.checkpoint_policies.save_only_these_names(*_fusion.SAVED))
+
+    def two(mu0):
+        p = setup.params._replace(material=setup.params.material._replace(mu0=mu0))
+        return one(one(setup.state, p), p).x
+
+    jax.ad_checkpoint.print_saved_residuals(two, setup.params.material.mu0)
+    named = [ln for ln in capsys.readouterr().out.splitlines() if " named '" in ln]
+    assert sorted({ln.split("'")[1] for ln in named}) == sorted(_fusion.SAVED) and len(named) == 4
+    # each line starts with the saved value's type, such as f64[459,5]
+    kinds = [ln.split("[")[0].strip() for ln in named]
+    assert set(kinds) == {"f64"}
+    nbytes = sum(8 * int(np.prod([int(d) for d in ln.split("[")[1].split("]")[0].split(",")])) for ln in named)
+    assert nbytes == 2 * _simulate.residual_bytes(setup.scene, setup.state)
