@@ -59,6 +59,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import mpmjax
+
 from .experiments import joint_residuals
 
 __all__ = [
@@ -131,7 +133,8 @@ def information_terms(experiments, pset, theta: dict):
         return joint_residuals(experiments, pset.values({k: vec[i] for i, k in enumerate(names)}))
 
     rs = [np.asarray(r, float) for r in res(th)]
-    Js = [np.asarray(J, float) for J in jax.jacfwd(res)(th)]
+    with mpmjax.flat_transfers():  # tangents batched, the stencil not: flat transfers (calibration.fit)
+        Js = [np.asarray(J, float) for J in jax.jacfwd(res)(th)]
     p = len(names)
     scales = []
     for e, r, J in zip(experiments, rs, Js, strict=True):

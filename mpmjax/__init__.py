@@ -4,7 +4,8 @@ Public API (modules are private; names are re-exported here):
 
 * scenes: ``load_scene``, ``validate`` (nested dict -> flat validated dict), ``build``,
   ``builtin_scenes``, ``SceneError``, ``SCHEMA``
-* the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``
+* the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``;
+  ``flat_transfers`` (a context for forward-mode Jacobians on the CPU)
 * time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
   parameter NamedTuples; adding a law: ``Law``, ``Param``, ``Option``, ``Internal``,
@@ -62,7 +63,7 @@ from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_la
 from ._scene import Gate, Params, Scene, State, Wall, init_state, restate
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
 from ._step import make_step
-from ._transfer import make_p2g
+from ._transfer import flat_transfers, make_p2g
 from ._version import __version__ as __version__  # re-exported
 
 __all__ = [
@@ -115,6 +116,7 @@ __all__ = [
     "run",
     "simulate",
     "make_p2g",
+    "flat_transfers",
     "make_step",
     "tait_pressure",
     "plotting",

@@ -51,6 +51,8 @@ Units SI; in 2D masses are per metre of depth (kg/m).
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import itertools
 
 import jax
@@ -88,6 +90,24 @@ def _outer_sum(a, b):
     return jnp.stack(rows, axis=1)
 
 
+_FLAT = contextvars.ContextVar("mpmjax_flat_transfers", default=False)
+
+
+@contextlib.contextmanager
+def flat_transfers():
+    """Steps traced inside this context scatter and gather by flat node indices, not by rows
+    (``_Stencil``).  For ``vmap`` over tangents of one run (forward-mode Jacobians,
+    ``calibration.fit.forward_jacobian``): there the indices are not batched, so the batch becomes part
+    of each row's window, strided across the grid, and the row transfers cost more than the flat
+    ones (the calibration twin's forward-mode gradient: 1.13x the time; docs/performance.md, "Row
+    windows and saved residuals").  A trace-time choice, like the backend's: values are the same."""
+    token = _FLAT.set(True)
+    try:
+        yield
+    finally:
+        _FLAT.reset(token)
+
+
 class _Stencil:
     """Per-particle stencil data: node indices, weights, gradients and offsets.
 
@@ -98,8 +118,9 @@ class _Stencil:
     windows").  The grid is then seen with P = k - 1 extra nodes at both ends of each line along the
     last axis; a row starting there is folded back onto the nodes the flat indices name (clipped, or
     wrapped on a periodic axis), so both layouts give the same sums.  Default: on the CPU only (the
-    GPU path is the flat one, unmeasured with rows).  ``localise`` makes the indices those of a
-    device's grid (``_shard.Replicated``, ``_slab.Slab``) before the transfers use them.
+    GPU path is the flat one, unmeasured with rows), and not inside ``flat_transfers()``.
+    ``localise`` makes the indices those of a device's grid (``_shard.Replicated``, ``_slab.Slab``)
+    before the transfers use them.
     """
 
     def __init__(self, scene: Scene, x, rows: bool | None = None):
@@ -174,7 +195,7 @@ class _Stencil:
             last = jnp.clip(last, -P, n_last - 1)
             self._fold = np.clip(np.arange(n_last + 2 * P) - P, 0, n_last - 1)
         small = scene.n_nodes // n_last * (n_last + 2 * P) < 2**31  # int32 indices of the padded grid's nodes
-        self.rows = bool(on_cpu() and dim > 1 and small) if rows is None else rows
+        self.rows = bool(on_cpu() and dim > 1 and small and not _FLAT.get()) if rows is None else rows
         self._line, self._start, self._n_last = line, (last + P)[:, None], n_last
         if self.rows:  # (n, k^(dim-1)): each row's first node in the padded grid, whole grid
             self._rows = self._padded(line // n_last)

@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 from test_fusion import RAW, _value_grad_jvp
 
+from calibration.fit import forward_jacobian
+
 import mpmjax as m
 from mpmjax import _shapes, _transfer
 from mpmjax._transfer import _Stencil
@@ -71,3 +73,23 @@ def test_the_step_and_its_derivatives_are_those_of_the_flat_transfers(monkeypatc
     assert rows[1] != 0.0
     for a, b in zip(rows, flat):
         assert abs(a - b) <= REL * abs(b), (rows, flat)
+
+
+def test_flat_transfers_is_a_trace_time_switch():
+    """Inside ``mpmjax.flat_transfers()`` (forward-mode Jacobians) stencils are flat, outside the CPU's
+    rows again; the forward-mode gradient of the calibration (``forward_jacobian``) equals reverse mode's."""
+    setup = m.build(m.validate(RAW))
+    with m.flat_transfers():
+        assert not _Stencil(setup.scene, setup.state.x).rows
+    assert _Stencil(setup.scene, setup.state.x).rows
+
+    def f(z):
+        p = setup.params._replace(material=setup.params.material._replace(mu0=z[0], lambda0=z[1]))
+        s = m.simulate(setup.scene, setup.state, p)[0]
+        return jnp.sum(s.x[:, 0] * s.active) / jnp.sum(s.active)
+
+    z = jnp.asarray([setup.params.material.mu0, setup.params.material.lambda0])
+    v_f, g_f = jax.jit(forward_jacobian(f))(z)
+    v_r, g_r = jax.jit(jax.value_and_grad(f))(z)
+    assert abs(float(v_f - v_r)) <= REL * abs(float(v_r))
+    np.testing.assert_allclose(np.asarray(g_f), np.asarray(g_r), rtol=1e-9, atol=0)

@@ -23,11 +23,10 @@ import jax
 import jax.numpy as jnp
 
 from mpmjax import build, load_scene
-from mpmjax._schema import parse_override
 from mpmjax._simulate import simulate
 
 steps, chunk_n, repeats = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
-setup = build(load_scene("dambreak-lab", [parse_override(o) for o in sys.argv[4:]]))
+setup = build(load_scene("dambreak-lab", sys.argv[4:]))
 scene = dataclasses.replace(setup.scene, steps_per_frame=chunk_n, n_frames=steps // chunk_n)
 
 
