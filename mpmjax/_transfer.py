@@ -322,9 +322,9 @@ def make_p2g(scene: Scene, axis: str | None = None, flat=None):
         else:
             force = -vol[:, None, None] * _bmv(sigma, st.dw)
             chans = jnp.concatenate([mw[..., None], mom, force], axis=-1)  # (n, S, 1+2dim)
-        # under differentiation the channels and the grid sums are formed once, and so are their
-        # cotangents in the reverse pass (the grid's before the transposed scatter gathers it; _fusion)
-        chans = derivative_boundary(chans)
+        # under differentiation the grid sums are formed once, and so is their cotangent in the reverse
+        # pass before the transposed scatter gathers it (_fusion); the channels are not: with the grid
+        # sums saved (below) a boundary on them cost the gradient 5-7 % (docs/performance.md, "Row windows")
         g = st.scatter(chans, grid.n_nodes) if flat is None else flat(st.idx, chans, grid.n_nodes)
         # in reverse mode the grid sums are kept, not recomputed (_fusion.saved, _simulate.make_chunk)
         g = saved(derivative_boundary(grid.reduce(g)), GRID_SUMS)
