@@ -114,9 +114,9 @@ class _Stencil:
     ``idx`` (n, S): flat global node indices (C order over the k^dim block of each particle).
     ``rows``: whether the transfers (``gather``, ``scatter``) read and write the grid by rows: the
     stencil is k^(dim-1) rows of k consecutive nodes along the last axis, and XLA:CPU scatters and
-    gathers a whole row per index, 2.5x faster than one node per index (docs/performance.md, "Row
-    windows").  The grid is then seen with P = k - 1 extra nodes at both ends of each line along the
-    last axis; a row starting there is folded back onto the nodes the flat indices name (clipped, or
+    gathers a whole row per index: its scatter alone is about 3x faster than with one node per index
+    (docs/performance.md, "Row windows and saved residuals").  The grid is then seen with P = k - 1
+    extra nodes at both ends of each line along the last axis; a row starting there is folded back onto the nodes the flat indices name (clipped, or
     wrapped on a periodic axis), so both layouts give the same sums.  Default: on the CPU only (the
     GPU path is the flat one, unmeasured with rows), and not inside ``flat_transfers()``.
     ``localise`` makes the indices those of a device's grid (``_shard.Replicated``, ``_slab.Slab``)
@@ -240,7 +240,8 @@ class _Stencil:
         n_lines = n_nodes // n_last
         g = jnp.zeros((n_lines * (n_last + 2 * P), C), vals.dtype)
         # a (k, C) window per row.  A flat (k C) window scatters 2x faster alone, but under vmap XLA:CPU
-        # then forms the channels in a layout that costs a batch of 16 more than it saves (docs/performance.md)
+        # then forms the channels in a layout that costs a batch of 16 more than it saves (docs/performance.md,
+        # "Row windows and saved residuals")
         dn = jax.lax.ScatterDimensionNumbers(
             update_window_dims=(1, 2), inserted_window_dims=(), scatter_dims_to_operand_dims=(0,)
         )
