@@ -116,8 +116,9 @@ class _Stencil:
     stencil is k^(dim-1) rows of k consecutive nodes along the last axis, and XLA:CPU scatters and
     gathers a whole row per index: its scatter alone is about 3x faster than with one node per index
     (docs/performance.md, "Row windows and saved residuals").  The grid is then seen with P = k - 1
-    extra nodes at both ends of each line along the last axis; a row starting there is folded back onto the nodes the flat indices name (clipped, or
-    wrapped on a periodic axis), so both layouts give the same sums.  Default: on the CPU only (the
+    extra nodes at both ends of each line along the last axis; a row starting there is folded back
+    onto the nodes the flat indices name (clipped, or wrapped on a periodic axis), so both layouts
+    give the same sums.  Default: on the CPU only (the
     GPU path is the flat one, unmeasured with rows), and not inside ``flat_transfers()``.
     ``localise`` makes the indices those of a device's grid (``_shard.Replicated``, ``_slab.Slab``)
     before the transfers use them.
