@@ -170,17 +170,23 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
     to the lowest point the material can reach (``_fall_height``): a frictionless energy bound.
     dt_visc = viscous_safety rho h^2 / (2 d mu_max), mu_max the largest viscosity the law
     can reach; it binds only the explicit update.
+    With the pressure solved on the grid (numerics.pressure = incompressible) the sound speed
+    leaves c: c = sqrt(4/3 G / rho), and G = 0 in numerics.maxwell_shear_modulus_pa means
+    G = rho |v|^2 instead of kappa.
     """
     mat = params.material
     rho, kappa = float(mat.rho), float(mat.kappa)
     h, dim = cfg["domain.cell_size_m"], cfg["domain.dim"]
     maxwell = cfg["numerics.viscous_update"] == "maxwell"
+    implicit = cfg["numerics.pressure"] != "explicit"
     G = (cfg["numerics.maxwell_shear_modulus_pa"] or kappa) if maxwell else 0.0
     # numpy float64 arithmetic: extreme (validated) inputs give inf / 0 / nan instead of
     # raising; build() rejects a limit that is not a positive finite number.
     f64 = np.float64
     with np.errstate(all="ignore"):
-        c = float(np.sqrt((f64(kappa) + f64(4.0 / 3.0) * f64(G)) / f64(rho)))
+        # with the pressure solved on the grid (numerics.pressure) only the Maxwell shear waves are explicit
+        k_expl = f64(kappa) if cfg["numerics.pressure"] == "explicit" else f64(0.0)
+        c = float(np.sqrt((k_expl + f64(4.0 / 3.0) * f64(G)) / f64(rho)))
         vscale = cfg["numerics.velocity_scale_m_s"]
         if vscale == 0.0:
             # + half a particle spacing: the top of the material, not its top particle centre
@@ -189,6 +195,11 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
                 np.sqrt(f64(2.0) * f64(cfg["gravity.g_m_s2"]) * f64(H))
                 + np.max(np.linalg.norm(np.asarray(v, float), axis=1), initial=0.0)
             )
+        if maxwell and implicit and not cfg["numerics.maxwell_shear_modulus_pa"]:
+            # the pressure solved on the grid: G = rho |v|^2, so the Maxwell shear waves are no
+            # faster than the flow and the step follows the flow speed
+            G = float(f64(rho) * f64(vscale) ** 2)
+            c = float(np.sqrt(f64(4.0 / 3.0) * f64(G) / f64(rho)))
         dt_wave = float(f64(cfg["numerics.cfl"]) * f64(h) / (f64(c) + f64(vscale)))
         mu_max = float(rheology.max_viscosity(mat))
         dt_visc = float(
@@ -426,6 +437,7 @@ def build(cfg: dict) -> Setup:
         slab_capacity=float(cfg["numerics.slab_capacity"]),
         transfer=cfg["numerics.transfer"],
         force=cfg["numerics.force"],
+        pressure=cfg["numerics.pressure"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],

@@ -271,6 +271,8 @@ def write_checkpoint(path, state, frame: int, cfg_hash: str, meta: dict):
     tmp = path.with_name(path.name + ".tmp")
     with h5py.File(tmp, "w") as f:
         for name, val in state._asdict().items():
+            if val is None:  # a field the run does not use (State.p of an explicit-pressure run)
+                continue
             if isinstance(val, dict):
                 g = f.create_group(name)
                 for k, arr in val.items():
@@ -291,6 +293,8 @@ def read_checkpoint(path):
     with h5py.File(path, "r") as f:
         vals = {}
         for name in State._fields:
+            if name not in f and name in State._field_defaults:
+                continue
             obj = f[name]
             vals[name] = {k: obj[k][()] for k in obj} if isinstance(obj, h5py.Group) else obj[()]
         frame = int(f.attrs["frame"])

@@ -173,6 +173,8 @@ class Scene:
       decomposition: with ``devices`` > 1, ``replicated`` (every device holds the whole grid,
         ``_shard``) or ``slab`` (the grid cut into slabs along x, halos exchanged, ``_slab``).
       slab_capacity: with ``slab``, particle slots per device relative to an even share.
+      pressure: ``explicit`` (the Tait EOS of each particle's J) or ``incompressible`` (one pressure
+        per grid cell solved each step; ``_pressure``).
     """
 
     dim: int
@@ -205,6 +207,7 @@ class Scene:
     decomposition: str = "replicated"
     slab_capacity: float = 1.5
     force: str = "gradient"
+    pressure: str = "explicit"
 
     @property
     def n_nodes(self) -> int:
@@ -276,7 +279,10 @@ class State(NamedTuple):
     internal: rheology internal variables, e.g. {"lam": (n,)} for Coussot;
     active: bool (n,): inactive particles carry no mass;
     gate: bool (n,): has passed the aging gate;
-    t: time [s] (scalar); n_lost: particles lost so far (scalar int).
+    t: time [s] (scalar); n_lost: particles lost so far (scalar int);
+    p: with ``numerics.pressure = "incompressible"``, the last step's pressure per grid
+    cell [Pa], shape (1, *grid_shape) (the leading 1 keeps it apart from the particle arrays), the
+    next solve's start; None otherwise (``_pressure``).
     """
 
     x: jnp.ndarray
@@ -291,6 +297,7 @@ class State(NamedTuple):
     gate: jnp.ndarray
     t: jnp.ndarray
     n_lost: jnp.ndarray
+    p: jnp.ndarray | None = None
 
 
 def _fresh_material(scene: Scene, params: Params, n: int, dt):
@@ -335,4 +342,5 @@ def init_state(scene: Scene, params: Params, x, vol0, v=None, active=None) -> St
         gate=jnp.zeros((n,), bool) if scene.gate is not None else jnp.ones((n,), bool),
         t=jnp.zeros((), dt),
         n_lost=jnp.zeros((), jnp.int32),
+        p=None if scene.pressure == "explicit" else jnp.zeros((1,) + tuple(scene.grid_shape), dt),
     )

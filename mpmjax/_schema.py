@@ -135,7 +135,12 @@ _HEAD: dict[str, Key] = {
         choices=("maxwell", "explicit"),
     ),
     "numerics.maxwell_shear_modulus_pa": Key(
-        float, 0.0, "Pa", "Maxwell regularisation modulus G; 0 means G = bulk modulus.", lo=0.0
+        float,
+        0.0,
+        "Pa",
+        "Maxwell regularisation modulus G; 0 means G = bulk modulus, or with numerics.pressure = incompressible "
+        "G = rho v^2, v the velocity scale of the time step, so that the shear waves are no faster than the flow.",
+        lo=0.0,
     ),
     "numerics.velocity_scale_m_s": Key(
         float,
@@ -175,6 +180,17 @@ _HEAD: dict[str, Key] = {
         "J noise above it. About 30 % more per step. Experimental: at fine grids it runs too far (water column "
         "+55 % at h = 2.5 mm, Bingham slump +7 % at 32 cells; docs/validation.md, convergence benchmark).",
         choices=("none", "jbar"),
+    ),
+    "numerics.pressure": Key(
+        str,
+        "explicit",
+        "-",
+        "Where the pressure comes from. explicit: each particle's J through the Tait EOS with "
+        "material.bulk_modulus_pa (the thesis's weakly compressible MPM: the time step follows its sound speed, "
+        "and a stiff kappa locks). incompressible: one pressure per grid cell solved every step so that the flow "
+        "keeps its volume (fractional step, conjugate gradients; kappa is not used); the time step then follows the "
+        "flow speed and the Maxwell shear waves (docs/validation.md, \"Incompressible limit\").",
+        choices=("explicit", "incompressible"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
     "numerics.devices": Key(

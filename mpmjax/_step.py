@@ -12,7 +12,10 @@ composes them:
 3. grid update (here): v = p/m + dt (f/m + g) on the nodes that hold mass
    (``EMPTY_NODE_FRACTION``), then the boundary conditions of ``_boundary``: walls as planes
    (``apply_wall``; a noslip box face with ``boundary.slip_length_m`` > 0: ``navier_slip``),
-   terrain (``terrain_velocity``), the pipe inlet's driven nodes (``pipe_nodes``); periodic axes wrap the stencil index (``_transfer._Stencil``);
+   terrain (``terrain_velocity``), the pipe inlet's driven nodes (``pipe_nodes``); periodic axes
+   wrap the stencil index (``_transfer._Stencil``); with ``numerics.pressure = "incompressible"``
+   the particles carry no pressure (step 1 is tau alone) and here the grid pressure is solved and
+   the velocity corrected (``_pressure``), then the conditions applied again;
 4. G2P (``_transfer.make_g2p``): velocity (APIC or FLIP/PIC blend), affine matrix, velocity
    gradient; then here the position, particles pushed back out of walls and terrain (never
    silently clamped elsewhere) and wrapped on periodic axes;
@@ -49,6 +52,7 @@ from ._boundary import (
 )
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._fusion import VELOCITY_GRADIENT, boundary, derivative_boundary, saved
+from ._pressure import make_projection
 from ._scene import Params, Scene, State
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
@@ -56,6 +60,33 @@ from ._transfer import make_g2p, make_p2g, packing_fraction, volume_average, vol
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
 EMPTY_NODE_FRACTION = 1e-9
+
+
+def _linear_conditions(scene: Scene, walls, slip_nb, terrain, pipe):
+    """The walls' conditions as a linear projection P (the pressure solve's, ``_pressure``):
+    noslip and the pipe's driven nodes v = 0; every other wall and terrain kind removes the
+    normal component (a slip wall's separation, a Navier wall's slip and Coulomb friction are
+    the step's own, applied after the solve)."""
+    if terrain is not None:
+        xn = scene.node_positions()
+        t_mask = xn[:, -1] <= terrain.height(xn[:, :-1]) + 1e-6 * scene.h
+        t_nrm = terrain.normal(xn[:, :-1])
+    pipe_on = pipe if pipe is not None else None
+
+    def P(v):
+        for mask, nrm, wall in walls:
+            v = apply_wall(v, nrm, "noslip" if wall.kind == "noslip" and wall.slip_length <= 0.0 else "symmetry", mask)
+        if terrain is not None:
+            if terrain.kind == "noslip":
+                v = jnp.where(t_mask[:, None], 0.0, v)
+            else:
+                n = jnp.asarray(t_nrm, v.dtype)
+                v = jnp.where(t_mask[:, None], v - jnp.sum(v * n, axis=1)[:, None] * n, v)
+        if pipe_on is not None:
+            v = jnp.where(pipe_on[:, None], 0.0, v)
+        return v
+
+    return P
 
 
 def make_step(scene: Scene, axis: str | None = None):
@@ -99,6 +130,18 @@ def make_step(scene: Scene, axis: str | None = None):
     if scene.volume_averaging not in ("none", "jbar"):
         raise ValueError(f"volume_averaging {scene.volume_averaging!r}; allowed: 'none', 'jbar'")
     fill = node_fill(scene) if cap > 0.0 else None
+    project = None
+    if scene.pressure != "explicit":
+        if jbar or cap > 0.0:
+            raise ValueError(
+                f"numerics.pressure = {scene.pressure!r} takes numerics.volume_averaging = 'none' and "
+                "numerics.grid_density_cap = 0 (the grid pressure keeps the volume itself)"
+            )
+        if scene.decomposition == "slab" and scene.devices > 1:
+            raise ValueError(
+                f"numerics.pressure = {scene.pressure!r} is not available with numerics.decomposition = 'slab'"
+            )
+        project = make_projection(scene, _linear_conditions(scene, walls, slip_nb, terrain, pipe), node_fill(scene))
 
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
 
@@ -123,19 +166,30 @@ def make_step(scene: Scene, axis: str | None = None):
         g = jnp.asarray(params.gravity, dtp)[None, :]
         accel = g if force is None else force * inv_m[:, None] + g  # force None: numerics.force = "mls"
         v_new = jnp.where(has[:, None], v_old + dt * accel, 0.0)
-        for i, (mask, nrm, wall) in enumerate(walls):
-            if i in slip_nb:  # the first interior nodes as the walls before this one left them
-                inner = grid.local(grid.nodes(slip_nb[i]))
-                v_wall = navier_slip(v_new, nrm, v_new[inner], wall.slip_length / scene.h)
-                v_new = jnp.where(grid.nodes(mask)[:, None], v_wall, v_new)
-            else:
-                v_new = apply_wall(v_new, nrm, wall.kind, grid.nodes(mask))
-        if terrain is not None:
-            v_new = jnp.where(grid.nodes(t_mask)[:, None], terrain_velocity(v_new, grid.nodes(t_nrm), terrain), v_new)
-        if pipe is not None:
-            on = (state.t >= inf.t_start) & (state.t < inf.t_stop)
-            v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
-            v_new = jnp.where(grid.nodes(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
+
+        def conditions(v_new):
+            for i, (mask, nrm, wall) in enumerate(walls):
+                if i in slip_nb:  # the first interior nodes as the walls before this one left them
+                    inner = grid.local(grid.nodes(slip_nb[i]))
+                    v_wall = navier_slip(v_new, nrm, v_new[inner], wall.slip_length / scene.h)
+                    v_new = jnp.where(grid.nodes(mask)[:, None], v_wall, v_new)
+                else:
+                    v_new = apply_wall(v_new, nrm, wall.kind, grid.nodes(mask))
+            if terrain is not None:
+                v_t = terrain_velocity(v_new, grid.nodes(t_nrm), terrain)
+                v_new = jnp.where(grid.nodes(t_mask)[:, None], v_t, v_new)
+            if pipe is not None:
+                on = (state.t >= inf.t_start) & (state.t < inf.t_stop)
+                v_pipe = jnp.where(on, inf.speed, 0.0) * jnp.asarray(inf.direction, dtp)
+                v_new = jnp.where(grid.nodes(pipe)[:, None] & has[:, None], v_pipe[None, :], v_new)
+            return v_new
+
+        v_new = conditions(v_new)
+        p_cell = None
+        if project is not None:
+            # numerics.pressure = "incompressible": the pressure solved on the grid (_pressure)
+            v_new, p_cell, _ = project(v_new, mass, inv_m, has, params, state.p[0])
+            v_new = conditions(v_new)
 
         # G2P: the nodal velocity is formed once, not inside the gather for every stencil node it
         # reaches; under differentiation the G2P's results too, so the transposed per-particle
@@ -185,6 +239,8 @@ def make_step(scene: Scene, axis: str | None = None):
             s_1 = jnp.expm1(ln_s / dim)[:, None, None]  # s - 1, accurate for s near 1
             L = L + s_1 * L + (s_1 / dt) * jnp.eye(dim, dtype=dtp)[None]
             J = state.J + state.J * dbar
+        elif p_cell is not None:
+            J = jnp.ones_like(state.J)  # numerics.pressure = "incompressible" (_pressure)
         else:
             J = state.J * jnp.linalg.det(jnp.eye(dim, dtype=dtp)[None] + dt * L)
         if fill is not None:
@@ -235,6 +291,7 @@ def make_step(scene: Scene, axis: str | None = None):
             gate=gate,
             t=state.t + dt,
             n_lost=state.n_lost + n_lost_now,
+            p=None if p_cell is None else p_cell[None],
         )
 
     return step

@@ -309,8 +309,11 @@ def make_p2g(scene: Scene, axis: str | None = None, flat=None):
         st.w, st.dw, st.r = derivative_boundary((st.w, st.dw, st.r))
         mass_p = mat.rho * state.vol0 * state.active
         vol = state.vol0 * state.J * state.active
-        p = tait_pressure(state.J, mat.kappa)
-        sigma = state.tau - p[:, None, None] * jnp.eye(dim, dtype=state.x.dtype)[None]
+        if scene.pressure == "explicit":
+            p = tait_pressure(state.J, mat.kappa)
+            sigma = state.tau - p[:, None, None] * jnp.eye(dim, dtype=state.x.dtype)[None]
+        else:  # the pressure is solved on the grid (_pressure)
+            sigma = state.tau
         mw = mass_p[:, None] * st.w  # (n, S)
         if apic:
             vel = state.v[:, None, :] + _bmv(state.C, st.r)

@@ -1,0 +1,218 @@
+"""Pressure on the grid: the fractional-step projection of ``numerics.pressure = "incompressible"``.
+
+The particles then carry no pressure (their stress is the deviatoric tau alone; kappa is not
+used) and each step solves for one pressure per grid cell against the nodal velocities (a Q1-P0
+pair: bilinear/trilinear velocity, cell-constant pressure):
+
+1. predictor: v* = v + dt (f_tau/m + g) on the nodes, with the walls' conditions (``_step``);
+2. pressure: find p on the fluid cells such that v = v* + dt m^-1 S B^T p satisfies
+   B v = beta V_c (phi_c - 1)^+ / dt, i.e.  A p = (beta V_c (phi_c - 1)^+ / dt - B v*) / dt,
+   A = B m^-1 S B^T, beta = ``VOLUME_RELAXATION``;
+3. corrector: v = v* + dt m^-1 S B^T p, then the walls' conditions again, then G2P (``_step``).
+
+Here B v is the cell's volume rate, the integral over the cell of div v with the bilinear
+(trilinear) interpolant of the nodal velocities: B_ci = int_c grad N_i dV = (h/2)^(d-1) s, s the
+corner's sign vector; B^T p is the nodal force of the cell pressures.  S = P P^T with P the walls'
+linear conditions (noslip and the pipe's driven nodes: 0; slip, symmetry, Navier slip, slip and
+Coulomb terrain: remove the normal component), so A is symmetric positive semi-definite and the
+correction obeys the walls (a slip wall's separation and Coulomb friction are applied after it).
+
+Why Q1-P0: one pressure per cell against 2^d velocity nodes is one constraint per cell, a count
+that does not lock (the particles' J is a constraint per particle, ppc^d of them per cell: it
+locks as kappa grows, docs/validation.md, "Incompressible limit").  Its spurious pressure mode
+(the checkerboard) has B^T p = 0 in the interior, so it moves nothing, and the free-surface cells
+(p = 0) pin it.
+
+Fluid cells: phi_c, the cell's packing (the nodal masses of its corners over rho h^d, each node
+divided by the packing a filled domain gives it, ``_boundary.node_fill``), at least
+``FLUID_FRACTION``; every other cell, and every cell whose centre lies outside the domain box,
+behind a plane or below the terrain, has p = 0 (the free surface, and the walls' ghost cells,
+which couple to nothing the walls leave free).  (phi_c - 1)^+ is the volume correction: a cell
+packed denser than its material is pushed back apart, so deposits stay at their volume whatever
+ppc does; under-filled cells are not pulled together (at the free surface they are partly empty
+by nature).
+
+The solve: conjugate gradients (``jax.scipy.sparse.linalg.cg``, a ``lax.custom_linear_solve``:
+differentiable by implicit differentiation, forward and reverse mode, and vmappable), Jacobi
+preconditioned, matrix free on the whole grid (cells that are not fluid are masked), started
+from the last step's pressure (``State.p``) or, where that is zero, the hydrostatic pressure of
+the fluid above the cell.
+
+A finite-kappa (weakly compressible) form with the EOS pressure kappa (phi_c - 1) was tried and
+dropped: phi measured on the grid fluctuates by 0.1-1 % as particles move, and times a stiff kappa
+that is a pressure noise of the order of the hydrostatic pressure (docs/validation.md).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._scene import Scene
+
+MODES = ("explicit", "incompressible")
+
+# a cell is fluid (an unknown of the solve) at packing phi_c >= this; below it, p = 0
+FLUID_FRACTION = 0.5
+# relative residual of the pressure solve by precision
+CG_RTOL = {"float32": 1e-5, "float64": 1e-11}
+CG_MAXITER = 2000
+VOLUME_RELAXATION = 1.0
+
+
+def _roll(a, shift, axis):
+    return jnp.roll(a, shift, axis=axis)
+
+
+def cell_valid(scene: Scene) -> np.ndarray:
+    """Static bool array of ``grid_shape``: cells that may hold fluid.  Cell k spans nodes
+    k .. k + 1 on every axis; on a non-periodic axis the last index (which would wrap) is never
+    valid, nor is a cell whose centre is outside the box, behind a plane wall or below terrain."""
+    shape = scene.grid_shape
+    axes = [scene.grid_origin[d] + scene.h * (np.arange(shape[d]) + 0.5) for d in range(scene.dim)]
+    xc = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
+    ok = np.ones(len(xc), bool)
+    for d in range(scene.dim):
+        if not scene.periodic[d]:
+            ok &= (xc[:, d] > scene.lo[d]) & (xc[:, d] < scene.hi[d])
+    for wall in scene.walls:
+        nrm = np.asarray(wall.normal, float)
+        ok &= (xc - np.asarray(wall.point)) @ (nrm / np.linalg.norm(nrm)) > 0.0
+    if scene.terrain is not None:
+        ok &= xc[:, -1] > scene.terrain.height(xc[:, :-1])
+    return ok.reshape(shape)
+
+
+def condition_matrix(scene: Scene, linear_conditions) -> tuple[np.ndarray, bool]:
+    """Static per-node Q = P P^T (N, dim, dim) of the walls' linear conditions, and whether every
+    Q is diagonal (box walls only: then the solve scales each component instead of a matrix product)."""
+    n, dim = scene.n_nodes, scene.dim
+    with jax.ensure_compile_time_eval():
+        cols = [np.asarray(linear_conditions(jnp.broadcast_to(jnp.eye(dim)[a], (n, dim)))) for a in range(dim)]
+    Pm = np.stack(cols, axis=-1)  # P[:, :, a] = P e_a
+    Q = np.einsum("nij,nkj->nik", Pm, Pm)
+    diagonal = bool(np.all(np.abs(Q - np.einsum("nii->ni", Q)[:, :, None] * np.eye(dim)[None]) < 1e-12))
+    return Q, diagonal
+
+
+def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: int = CG_MAXITER):
+    """``project(v_star, mass, inv_m, has, params, p_prev=None) -> (v, p, (A, b))``: the pressure
+    step of the module docstring on the whole grid (flat node arrays (N,), (N, dim); p per cell,
+    ``grid_shape``; A and b the solved system, for diagnostics).  ``p_prev``: the last step's
+    pressure, the solve's start where it is not zero.
+
+    ``linear_conditions(v) -> P v``: the walls' conditions, linear (``_step._linear_conditions``);
+    ``fill``: the static ``_boundary.node_fill`` (N,).
+    """
+    dim, h, shape = scene.dim, scene.h, tuple(scene.grid_shape)
+    valid = cell_valid(scene)
+    coef = (0.5 * h) ** (dim - 1)
+    vol_c = h**dim
+    rtol = CG_RTOL[scene.dtype]
+    signs = [np.array(s) for s in np.ndindex(*(2,) * dim)]  # corners of a cell, as node offsets
+    Q, diagonal = condition_matrix(scene, linear_conditions)
+    Qg = Q.reshape(shape + (dim, dim))
+
+    def div(vs):
+        """B v: nodal velocity components (dim arrays of grid_shape) -> cell volume rates."""
+        out = 0.0
+        for a in range(dim):
+            t = _roll(vs[a], -1, a) - vs[a]
+            for b in range(dim):
+                if b != a:
+                    t = t + _roll(t, -1, b)
+            out = out + t
+        return coef * out
+
+    def grad(q):
+        """B^T q: cell values (grid_shape) -> nodal force components (dim arrays)."""
+        cols = []
+        for a in range(dim):
+            t = q
+            for b in range(dim):
+                if b != a:
+                    t = t + _roll(t, 1, b)
+            cols.append(coef * (_roll(t, 1, a) - t))
+        return cols
+
+    def corner_sum(g):
+        """Sum over a cell's 2^d corner nodes of a nodal scalar (grid_shape)."""
+        out = 0.0
+        for s in signs:
+            t = g
+            for a in range(dim):
+                if s[a]:
+                    t = _roll(t, -1, a)
+            out = out + t
+        return out
+
+    fill_c = _np_corner_sum(np.asarray(fill, float).reshape(shape), signs)  # static
+
+    def project(v_star, mass, inv_m, has, params, p_prev=None):
+        dtp = v_star.dtype
+        mat = params.material
+        rho = mat.rho
+        m_g = inv_m.reshape(shape)
+        # S = m^-1 P P^T per node: per component (box walls) or a dim x dim product
+        if diagonal:
+            W = [m_g * jnp.asarray(Qg[..., a, a], dtp) for a in range(dim)]
+
+            def S(fs):
+                return [W[a] * fs[a] for a in range(dim)]
+        else:
+            W = [[m_g * jnp.asarray(Qg[..., a, b], dtp) for b in range(dim)] for a in range(dim)]
+
+            def S(fs):
+                return [sum(W[a][b] * fs[b] for b in range(dim)) for a in range(dim)]
+
+        # packing per cell and the fluid cells
+        phi = corner_sum(mass.reshape(shape)) / (rho * vol_c * jnp.asarray(np.maximum(fill_c, 1e-12), dtp))
+        fluid = jnp.asarray(valid) & (phi >= FLUID_FRACTION)
+
+        def A(q):
+            q = jnp.where(fluid, q, 0.0)
+            return jnp.where(fluid, div(S(grad(q))), 0.0)
+
+        vs = [v_star[:, a].reshape(shape) for a in range(dim)]
+        excess = VOLUME_RELAXATION * jnp.maximum(phi - 1.0, 0.0)
+        b = jnp.where(fluid, (vol_c * excess / scene.dt - div(vs)) / scene.dt, 0.0)
+        # Jacobi: diag(A)_c = sum over corners i of coef^2 s^T W_i s
+        diag = 0.0
+        for sgn in signs:
+            sg = 2.0 * sgn - 1.0
+            if diagonal:
+                term = sum(W[a] for a in range(dim))
+            else:
+                term = sum(float(sg[a] * sg[b]) * W[a][b] for a in range(dim) for b in range(dim))
+            t = coef**2 * term
+            for a in range(dim):
+                if sgn[a]:
+                    t = _roll(t, -1, a)
+            diag = diag + t
+        inv_diag = jnp.where(fluid & (diag > 0.0), 1.0 / jnp.where(diag > 0.0, diag, 1.0), 0.0)
+        # start: the last step's pressure, else hydrostatic (the fluid above along the last axis)
+        col = jnp.where(fluid, phi, 0.0)
+        above = jnp.flip(jnp.cumsum(jnp.flip(col, dim - 1), axis=dim - 1), dim - 1) - 0.5 * col
+        p0 = jnp.where(fluid, rho * jnp.maximum(-params.gravity[-1], 0.0) * h * above, 0.0)
+        if p_prev is not None:
+            p0 = jnp.where(fluid & (p_prev != 0.0), p_prev, p0)
+        p0 = jax.lax.stop_gradient(p0)
+        p, _ = jax.scipy.sparse.linalg.cg(A, b, x0=p0, tol=rtol, atol=0.0, maxiter=maxiter, M=lambda r: inv_diag * r)
+        p = jnp.where(fluid, p, 0.0)
+        dv = S(grad(p))
+        v = v_star + scene.dt * jnp.stack([c.reshape(-1) for c in dv], axis=-1)
+        return jnp.where(has[:, None], v, 0.0), p, (A, b)
+
+    return project
+
+
+def _np_corner_sum(g: np.ndarray, signs) -> np.ndarray:
+    out = np.zeros_like(g, dtype=float)
+    for s in signs:
+        t = g
+        for a in range(g.ndim):
+            if s[a]:
+                t = np.roll(t, -1, axis=a)
+        out = out + t
+    return out
