@@ -579,6 +579,13 @@ def start_warnings(setup: Setup) -> list[str]:
             fix = "raise numerics.dt_s (up to the stable limit), "
         elif dt_target / sc.dt > DT_FORCED_RATIO:
             cause, fix = "time.n_frames sets the step (above)", ""
+        elif wave and cfg["numerics.pressure"] != "explicit":
+            cause = (
+                f"the flow speed v = {float(info['velocity_scale_m_s']):.3g} m/s and the Maxwell shear waves "
+                f"(G = {float(info['maxwell_G_pa']):.4g} Pa, c = {float(info['wave_speed_m_s']):.3g} m/s) set the step "
+                f"(dt = numerics.cfl h / (c + v) = {info['dt_wave_s']:.3g} s, h = domain.cell_size_m = {h:g} m)"
+            )
+            fix = ""
         elif wave:
             rho = float(cfg["material.density_kg_m3"])
             kappa = float(cfg["material.bulk_modulus_pa"])

@@ -780,6 +780,24 @@ def _validate_material(flat: dict, out: dict) -> None:
             )
 
 
+def _check_pressure(out: dict):
+    """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
+    and the slab decomposition (whose halos the grid solve does not exchange) are refused."""
+    if out["numerics.pressure"] == "explicit":
+        return
+    for key, off in (("numerics.volume_averaging", "none"), ("numerics.grid_density_cap", 0.0)):
+        if out[key] != off:
+            raise SceneError(
+                f"{key} = {_show(out[key])} is invalid with numerics.pressure = 'incompressible' (the grid pressure "
+                f"keeps the volume itself); allowed: {off!r}"
+            )
+    if out["numerics.devices"] > 1 and out["numerics.decomposition"] == "slab":
+        raise SceneError(
+            "numerics.decomposition = 'slab' is invalid with numerics.pressure = 'incompressible' (the pressure is "
+            "solved on the whole grid); allowed: 'replicated'"
+        )
+
+
 def validate(raw: dict) -> dict:
     """Check a nested scene dict against ``SCHEMA``; returns a flat dict with defaults."""
     if not isinstance(raw, dict):
@@ -808,6 +826,7 @@ def validate(raw: dict) -> dict:
             out[key] = copy.deepcopy(spec.default)
     if out["numerics.dtype"] == "float32":
         _check_float32_range(out)
+    _check_pressure(out)
     lo, hi = np.asarray(out["domain.lo_m"]), np.asarray(out["domain.hi_m"])
     if np.any(hi <= lo):
         raise SceneError(

@@ -155,10 +155,13 @@ def test_vmap_equals_separate_runs():
 
 
 def test_rejected_combinations():
-    for extra in ({"numerics.volume_averaging": "jbar"}, {"numerics.grid_density_cap": 0.05}):
-        with pytest.raises(ValueError, match="numerics.pressure"):
-            s = _layer(extra=extra)
-            m.make_step(s.scene)
+    for extra, key in (
+        ({"numerics.volume_averaging": "jbar"}, "numerics.volume_averaging"),
+        ({"numerics.grid_density_cap": 0.05}, "numerics.grid_density_cap"),
+        ({"numerics.devices": 2, "numerics.decomposition": "slab"}, "numerics.decomposition"),
+    ):
+        with pytest.raises(m.SceneError, match=key):
+            _layer(extra=extra)
 
 
 def test_coussot_runs_incompressible():
