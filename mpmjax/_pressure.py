@@ -61,8 +61,20 @@ CG_MAXITER = 2000
 VOLUME_RELAXATION = 1.0
 
 
-def _roll(a, shift, axis):
-    return jnp.roll(a, shift, axis=axis)
+def _shifter(periodic):
+    """``shift(a, s, axis)``: a[i - s] along ``axis`` (s = +-1).  A periodic axis wraps (roll); any other
+    axis fills with zero, which equals the wrap there: the wrapped-in entries are the last cell (never
+    fluid, so its pressure is zero) or the first ghost node (no mass).  Padding fuses with its
+    neighbours where a roll's concatenation does not (XLA:CPU, lab grid: the product A p 38 -> 23 us)."""
+
+    def shift(a, s, axis):
+        if periodic[axis]:
+            return jnp.roll(a, s, axis=axis)
+        cfg = [(0, 0, 0)] * a.ndim
+        cfg[axis] = (s, -s, 0)
+        return jax.lax.pad(a, jnp.zeros((), a.dtype), cfg)
+
+    return shift
 
 
 def cell_valid(scene: Scene) -> np.ndarray:
@@ -112,6 +124,7 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
     rtol = CG_RTOL[scene.dtype]
     signs = [np.array(s) for s in np.ndindex(*(2,) * dim)]  # corners of a cell, as node offsets
     Q, diagonal = condition_matrix(scene, linear_conditions)
+    _roll = _shifter(scene.periodic)
     Qg = Q.reshape(shape + (dim, dim))
 
     def div(vs):
