@@ -18,8 +18,15 @@ from .folder import OutputLock, check_output_folder, make_output_folder
 from .loop import Measures, Run, run_frames
 from .memory import check_memory
 from .outputs import finish
-from .resume import CHECKPOINT_EVERY, CHECKPOINT_NAME, Checkpointer, check_same_scene, read_for_resume, restore
-from .resume import resume_command
+from .resume import (
+    CHECKPOINT_EVERY,
+    CHECKPOINT_NAME,
+    Checkpointer,
+    check_same_scene,
+    read_for_resume,
+    restore,
+    resume_command,
+)
 from .signals import Interrupted, Signals
 from .status import OutputFailure, os_reason
 from .summary import base_summary, status_summary, write_summary_anyway
