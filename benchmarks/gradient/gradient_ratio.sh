@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The gradient/forward ratio of a git revision against the working tree's, side by side: per
-# round a fresh process each (docs/bench/gradient_ratio.py), the revision first, alternating.
-# usage: docs/bench/gradient_ratio.sh REV [ROUNDS] [STEPS] [CHUNK] [KEY=VALUE ...] > out.jsonl
+# round a fresh process each (benchmarks/gradient/gradient_ratio.py), the revision first, alternating.
+# usage: benchmarks/gradient/gradient_ratio.sh REV [ROUNDS] [STEPS] [CHUNK] [KEY=VALUE ...] > out.jsonl
 # Pinned to one core with one XLA thread when ONE_CORE=1 (CPU time then that of the work alone).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -22,6 +22,6 @@ for round in $(seq 1 "$rounds"); do
   for tree in "$base" "$here"; do
     code=$([ "$tree" = "$base" ] && echo "$rev" || echo "working tree")
     (cd /tmp && CODE="$code" PYTHONPATH="$tree" XLA_FLAGS="${flags# }" "${pin[@]}" "$py" \
-      "$here/docs/bench/gradient_ratio.py" "$steps" "$chunk" 2 "$@")
+      "$here/benchmarks/gradient/gradient_ratio.py" "$steps" "$chunk" 2 "$@")
   done
 done

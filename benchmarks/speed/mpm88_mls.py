@@ -1,7 +1,7 @@
 """mpmjax's mpm88-equivalent with ``numerics.force = "mls"`` against the default nodal force and the
 minimal JAX port (issue 18 item 2), timed in turn, each code first in turn; one JSON line per call.
 
-    .venv/bin/python docs/bench/mpm88_mls.py [STEPS [ROUNDS]] >> docs/bench/mpm88_mls.jsonl
+    .venv/bin/python benchmarks/speed/mpm88_mls.py [STEPS [ROUNDS]] >> benchmarks/speed/mpm88_mls.jsonl
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ one JSON line per case, microseconds per call (median and range of 5 rounds of 5
 codes alternating within each round).
 
     XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= taskset -c 1 \\
-        .venv/bin/python docs/bench/row_windows.py >> docs/bench/row_windows.jsonl
+        .venv/bin/python benchmarks/transfer/row_windows.py >> benchmarks/transfer/row_windows.jsonl
 
 Random particles on a 2D grid of N x N nodes, a quadratic stencil (k = 3, 9 nodes), C channels:
 ``flat`` one index per node (window (1, C), what ``_transfer.scatter_add`` does), ``rows`` one

@@ -1,7 +1,7 @@
 """Value and gradient of a calibration loss in forward and in reverse mode, in loss evaluations
 (the break-even behind ``calibration.fit.FORWARD_MODE_MAX_PARAMS``); one JSON line per round.
 
-    python docs/bench/gradient_modes.py [ROUNDS] >> docs/bench/gradient_modes.jsonl
+    python benchmarks/gradient/gradient_modes.py [ROUNDS] >> benchmarks/gradient/gradient_modes.jsonl
 
 The twin scene (data/twin-small-dambreak.toml, float64) against its synthetic profiles, as
 tests/test_twin.py builds it; k = 2 (mu0, lambda0) and k = 5 (all Coussot parameters) free.

@@ -1,7 +1,7 @@
 """Taichi's CPU backend on the mpm88 configuration: the reference side of the speed target.
 
 Not part of the package and not a dependency: run it in its own environment
-(``python -m venv tv && tv/bin/pip install taichi``), through ``docs/bench/side_by_side.sh``,
+(``python -m venv tv && tv/bin/pip install taichi``), through ``benchmarks/speed/side_by_side.sh``,
 which times this and ``mpmjax``'s mpm88-equivalent one after the other under the same load.
 
 The algorithm is MLS-MPM as in Taichi's ``mpm88`` example (written here from the method, Hu et

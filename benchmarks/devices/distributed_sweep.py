@@ -1,6 +1,6 @@
 """One sweep on 1 process against 2 local processes joined by jax.distributed (issue 18 item 5).
 
-usage: python docs/bench/distributed_sweep.py [ROUNDS] >> docs/bench/distributed_sweep.jsonl
+usage: python benchmarks/devices/distributed_sweep.py [ROUNDS] >> benchmarks/devices/distributed_sweep.jsonl
 
 Runs the same ``mpmjax sweep`` (the twin dam break, 300 particles, 1140 steps, float64, 8 cases:
 mu0 x n) as whole command-line processes, the codes alternating in each round and each going

@@ -2,7 +2,7 @@
 calibration differentiates), in whatever mpmjax ``import`` finds
 (``gradient_ratio.sh`` points PYTHONPATH at two checkouts in turn); one JSON line.
 
-    python docs/bench/gradient_ratio.py STEPS CHUNK REPEATS [KEY=VALUE ...]
+    python benchmarks/gradient/gradient_ratio.py STEPS CHUNK REPEATS [KEY=VALUE ...]
 
 Scene ``dambreak-lab`` (the default, ppc 3, float32) with ``--set``-style overrides, cut into
 STEPS / CHUNK frames of CHUNK steps; the loss is the mean x of the active particles after STEPS steps,

@@ -9,7 +9,7 @@ data/twin-small-dambreak.toml at h = 0.03 m to t = 0.6 s; profiles at 0.3 and 0.
 1 mm noise, made at the fit's own cell size (so the design question is not mixed with the
 resolution bias of docs/calibration.md "Numerical uncertainty").
 
-    PYTHONPATH=. python docs/bench/design_twin.py [OUT_JSON]
+    PYTHONPATH=. python benchmarks/calibration/design_twin.py [OUT_JSON]
 """
 
 from __future__ import annotations

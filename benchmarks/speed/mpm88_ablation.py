@@ -31,7 +31,7 @@ the process and wall time per call).  Every variant's mean fall after the run is
 against the minimal port's (the block does not reach a wall in 500 steps of 1e-4 s, so the
 internal forces cancel and all fall alike; the check that each variant is the same physics).
 
-    .venv/bin/python docs/bench/mpm88_ablation.py [STEPS [ROUNDS]] >> docs/bench/mpm88_ablation.jsonl
+    .venv/bin/python benchmarks/speed/mpm88_ablation.py [STEPS [ROUNDS]] >> benchmarks/speed/mpm88_ablation.jsonl
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """P2G alternatives on the CPU, side by side (issue 18 item 1), and one run over 2 host devices (item 4).
 
-usage: python docs/bench/p2g_alternatives.py [p2g|scatter|step|check] [ROUNDS] >> docs/bench/p2g_alternatives.jsonl
+usage: python benchmarks/transfer/p2g_alternatives.py [p2g|scatter|step|check] [ROUNDS] >> benchmarks/transfer/p2g_alternatives.jsonl
 
 Runs in one process with 2 host devices (``jax_num_cpu_devices``), alternating the codes in each
 round, and prints one JSON line per measurement: CPU time (``time.process_time``, both cores

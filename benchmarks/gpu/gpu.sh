@@ -3,16 +3,16 @@
 # has jax with CUDA, diffrax, optax, h5py and matplotlib (nothing is installed from the network).
 # Every part writes under $OUT as it finishes, so a part cut off by its time limit loses only itself.
 #   1. env.txt          the GPU, driver, python and jax
-#   2. batch.jsonl      vmap batch of 16 against 16 sequential runs (docs/bench/batch_sizes.py)
+#   2. batch.jsonl      vmap batch of 16 against 16 sequential runs (benchmarks/batch/batch_sizes.py)
 #   3. bench_gpu_float32.json / bench.log   `mpmjax bench --large` (1e3-1e6 particles, 2D/3D, f32/f64, with
 #                           XLA's bytes and flops per particle-step and the device's STREAM triad)
 #   4. side_by_side.jsonl   Taichi 1.7.4 on CUDA against our mpm88-equivalent (only if .whl/ holds
 #                           the taichi and dill wheels for this python)
 #   5. run_*.json       wall time and summary of `mpmjax run` on dambreak-lab and field-dambreak-3d
-# usage: OUT=dir bash docs/bench/gpu.sh
+# usage: OUT=dir bash benchmarks/gpu/gpu.sh
 cd "$(dirname "$0")/../.."
-# shellcheck source=docs/bench/gpu_env.sh
-source docs/bench/gpu_env.sh
+# shellcheck source=benchmarks/gpu/gpu_env.sh
+source benchmarks/gpu/gpu_env.sh
 mj() { "$py" -c 'import sys; from mpmjax.cli import main; sys.exit(main(sys.argv[1:]))' "$@"; }
 
 {
@@ -23,7 +23,7 @@ mj() { "$py" -c 'import sys; from mpmjax.cli import main; sys.exit(main(sys.argv
 
 for a in "0.01 400" "0.005 400" "0.0025 200"; do
   # shellcheck disable=SC2086
-  timeout 90 "$py" docs/bench/batch_sizes.py $a 2>&1 | grep '^{' | tee -a "$OUT/batch.jsonl"
+  timeout 90 "$py" benchmarks/batch/batch_sizes.py $a 2>&1 | grep '^{' | tee -a "$OUT/batch.jsonl"
 done
 
 # --reps 2 and no batch section (batch_sizes.py above measures it): each row now also compiles one step
@@ -35,7 +35,7 @@ tail -n 30 "$OUT/bench.log"
 if ls .whl/taichi-*.whl > /dev/null 2>&1; then
   "$py" -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl &&
     for round in 1 2; do
-      PYTHONPATH=/tmp/site:$PYTHONPATH TAICHI_ARCH=cuda timeout 60 "$py" docs/bench/taichi_mlsmpm.py 2000 \
+      PYTHONPATH=/tmp/site:$PYTHONPATH TAICHI_ARCH=cuda timeout 60 "$py" benchmarks/speed/taichi_mlsmpm.py 2000 \
         2>&1 | grep '^{' | tee -a "$OUT/side_by_side.jsonl"
       timeout 60 "$py" - "$round" <<'PY' 2>&1 | grep '^{' | tee -a "$OUT/side_by_side.jsonl"
 import json, sys

@@ -1,6 +1,6 @@
 """Reverse-mode gradient cost against the forward run, levers side by side (issue 18 item 3).
 
-usage: python docs/bench/gradient_cost.py H STEPS ROUNDS VARIANT[,VARIANT...] >> docs/bench/gradient_cost.jsonl
+usage: python benchmarks/gradient/gradient_cost.py H STEPS ROUNDS VARIANT[,VARIANT...] >> benchmarks/gradient/gradient_cost.jsonl
 
 Scene: ``dambreak-lab`` (GIMP, ppc 3, float32) with ``domain.cell_size_m = H``; the loss is the
 mean x of the active particles after STEPS steps, differentiated w.r.t. mu0 (value_and_grad).

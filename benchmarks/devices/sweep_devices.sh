@@ -3,7 +3,7 @@
 # (1600 particles), 16 cases (8 values of mu0 x 2 of n), 2 s of flow (3168 steps), alternating, 3 rounds.
 # One JSON line per command: its wall time (start-up and compilation included) and sweep.json's
 # wall_s (the sweep itself, its compilation included).
-#   bash docs/bench/sweep_devices.sh > docs/bench/sweep_devices.jsonl
+#   bash benchmarks/devices/sweep_devices.sh > benchmarks/devices/sweep_devices.jsonl
 cd "$(dirname "$0")/../.." || exit 2
 out=$(mktemp -d)
 for r in 1 2 3; do for d in 1 2; do

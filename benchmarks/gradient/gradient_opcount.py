@@ -22,7 +22,7 @@ would replace.
 
 Nothing is timed; the counts are deterministic for a given jax/XLA version.
 
-    .venv/bin/python docs/bench/gradient_opcount.py > docs/bench/gradient_opcount.json
+    .venv/bin/python benchmarks/gradient/gradient_opcount.py > benchmarks/gradient/gradient_opcount.json
 """
 
 import json

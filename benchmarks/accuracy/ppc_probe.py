@@ -1,7 +1,7 @@
-"""Probes of the particles-per-cell dependence of the runout (issue 14; docs/bench/ppc_probe.md).
+"""Probes of the particles-per-cell dependence of the runout (issue 14; benchmarks/accuracy/ppc_probe.md).
 
-    PYTHONPATH=. python docs/bench/ppc_probe.py slump 0.0125 1,3 '{"numerics.grid_density_cap": 0.05}'
-    PYTHONPATH=. python docs/bench/ppc_probe.py lab 0.02 1,2,3 '{}'
+    PYTHONPATH=. python benchmarks/accuracy/ppc_probe.py slump 0.0125 1,3 '{"numerics.grid_density_cap": 0.05}'
+    PYTHONPATH=. python benchmarks/accuracy/ppc_probe.py lab 0.02 1,2,3 '{}'
 
 One JSON line per run.  slump: the scene of ``mpmjax converge --case slump`` with the overrides,
 its front per frame, the error against the exact x_f, and the overpacking of the deposit at the end: Sigma J V0

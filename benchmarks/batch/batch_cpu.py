@@ -8,7 +8,7 @@ XLA's flags are per process, so ``side by side`` here means processes alternated
 
     for r in 1 2; do for m in seq vmap shard; do
       [ $m = shard ] && export XLA_FLAGS=--xla_force_host_platform_device_count=2 || unset XLA_FLAGS
-      .venv/bin/python docs/bench/batch_cpu.py $m 300; done; done >> docs/bench/batch_cpu.jsonl
+      .venv/bin/python benchmarks/batch/batch_cpu.py $m 300; done; done >> benchmarks/batch/batch_cpu.jsonl
 
 With a third argument ``profile`` (MODE ``seq`` or ``vmap``) one call is traced with ``jax.profiler``
 instead, and the durations of XLA's thunks (its compiled kernels: fusions, scatters, gathers) are
@@ -16,7 +16,7 @@ summed over both threads, the thread pool's own waits (``ThunkExecutor``, ``Slin
 work done, which process CPU time is not (waiting threads spin).  One JSON line, the total and the
 largest thunks:
 
-    for m in seq vmap; do .venv/bin/python docs/bench/batch_cpu.py $m 100 profile; done >> docs/bench/batch_profile.jsonl
+    for m in seq vmap; do .venv/bin/python benchmarks/batch/batch_cpu.py $m 100 profile; done >> benchmarks/batch/batch_profile.jsonl
 """
 
 import collections

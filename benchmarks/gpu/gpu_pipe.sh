@@ -1,15 +1,15 @@
 #!/usr/bin/env bash
 # Resolution and grid-volume-check runs of the pipe scenes on a lent NVIDIA GPU (docs/scenarios.md):
 #   field-pipe-3d at h = 0.25 m (the pipe 1.1 cells across) without and with numerics.grid_density_cap,
-#   the thin flume deposit at h = 2 cm after 300 s (docs/bench/thin_deposit.py), and the lab dam break
+#   the thin flume deposit at h = 2 cm after 300 s (benchmarks/accuracy/thin_deposit.py), and the lab dam break
 #   at h = 2.5 mm with the cap (against the float64 reference runout of `mpmjax pareto`).
 # Each run appends one JSON line to $OUT/results.jsonl as it ends; logs go to $OUT/log.txt.
 # Part "refine": field-pipe-3d in the scene's own box at h = 0.25 and 0.125 m, no cap (recorded when that box
 # was 40 m x 25 m; it is now 40 m x 24 m, whose nodes coincide with it: docs/scenarios.md).
-# usage: OUT=dir bash docs/bench/gpu_pipe.sh [all|refine]
+# usage: OUT=dir bash benchmarks/gpu/gpu_pipe.sh [all|refine]
 cd "$(dirname "$0")/../.."
-# shellcheck source=docs/bench/gpu_env.sh
-source docs/bench/gpu_env.sh
+# shellcheck source=benchmarks/gpu/gpu_env.sh
+source benchmarks/gpu/gpu_env.sh
 log="$OUT/log.txt"
 
 run_scene() { # limit_s scene tag --set ... : `mpmjax run`, then one JSON line from its summary
@@ -44,7 +44,7 @@ big=(--set "domain.lo_m=[0.0, -25.0, 0.0]" --set "domain.hi_m=[150.0, 25.0, 2.0]
 run_scene 130 field-pipe-3d fp3d_h025_cap0 "${big[@]}" --set domain.cell_size_m=0.25
 run_scene 130 field-pipe-3d fp3d_h025_cap01 "${big[@]}" --set domain.cell_size_m=0.25 --set numerics.grid_density_cap=0.1
 for cap in 0 0.1; do
-  timeout 60 "$py" docs/bench/thin_deposit.py flume-deposition 300 domain.cell_size_m=0.02 \
+  timeout 60 "$py" benchmarks/accuracy/thin_deposit.py flume-deposition 300 domain.cell_size_m=0.02 \
     numerics.grid_density_cap=$cap 2>> "$log" | grep '^{' | tee -a "$OUT/results.jsonl"
 done
 run_scene 100 dambreak-lab lab_h00025_cap01 --set domain.cell_size_m=0.0025 --set numerics.grid_density_cap=0.1

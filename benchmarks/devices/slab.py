@@ -1,6 +1,6 @@
 """One run over 2 host devices: the replicated grid against slabs with halo exchange (issue 18 item 4).
 
-usage: python docs/bench/slab.py [ROUNDS] [STEPS] >> docs/bench/slab.jsonl
+usage: python benchmarks/devices/slab.py [ROUNDS] [STEPS] >> benchmarks/devices/slab.jsonl
 
 Runs in one process with 2 host devices (``jax_num_cpu_devices``).  Per scene, three codes run
 ``STEPS`` steps per call (``make_chunk``), alternating, each first in turn:

@@ -5,7 +5,7 @@ them, in float64, then prints one JSON line: the deposited volume sum(J V0), the
 free surface (per cell-wide column: the top particle + half a particle spacing), their ratio
 (1 for a deposit whose particles fill the volume their J gives them), the most particles found in
 one cell (nominal ppc^2), the front position and the wall time.
-usage: python docs/bench/thin_deposit.py SCENE T [KEY=VALUE ...]   (scene overrides, as --set)
+usage: python benchmarks/accuracy/thin_deposit.py SCENE T [KEY=VALUE ...]   (scene overrides, as --set)
 """
 
 import json

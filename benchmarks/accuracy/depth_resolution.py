@@ -1,10 +1,10 @@
 """What buys resolution across the flow depth most cheaply? (issue 14 item 6; docs/validation.md,
-section "Depth resolution"; raw figures in docs/bench/depth_resolution.jsonl).
+section "Depth resolution"; raw figures in benchmarks/accuracy/depth_resolution.jsonl).
 
-    PYTHONPATH=. python docs/bench/depth_resolution.py split            # grid / particle cost split
-    PYTHONPATH=. python docs/bench/depth_resolution.py run lab 0.007 3 '{"domain.hi_m": [1.5, 0.24]}'
-    PYTHONPATH=. python docs/bench/depth_resolution.py run slump 0.0125 3 '{"boundary.slip_length_m": 0.005}'
-    PYTHONPATH=. python docs/bench/depth_resolution.py table            # the markdown table
+    PYTHONPATH=. python benchmarks/accuracy/depth_resolution.py split            # grid / particle cost split
+    PYTHONPATH=. python benchmarks/accuracy/depth_resolution.py run lab 0.007 3 '{"domain.hi_m": [1.5, 0.24]}'
+    PYTHONPATH=. python benchmarks/accuracy/depth_resolution.py run slump 0.0125 3 '{"boundary.slip_length_m": 0.005}'
+    PYTHONPATH=. python benchmarks/accuracy/depth_resolution.py table            # the markdown table
 
 ``split``: the compiled step's CPU time (``time.process_time``, compile excluded, best of 3 loops
 of a short run) of the lab dam break at ppc 3 for several domain lengths at a fixed particle set,
@@ -15,7 +15,7 @@ t_step = a N_particles + b N_nodes (least squares over the domains).
 6 s) at cell size h [m] and ppc with scene overrides; appends one JSON line: loop CPU, runout, the
 deposit's thickness in cells (``RunoutGauge.max_thickness`` / h, as summary.json), the lab error
 against the extrapolated reference 1.297 m and the profile's RMS difference from the finest lab run
-(GIMP ppc 3 at h = 0.005 m, docs/bench/converge.json), the slump's errors against its exact
+(GIMP ppc 3 at h = 0.005 m, benchmarks/accuracy/converge.json), the slump's errors against its exact
 profile (``studies.converge.slump_errors``).
 """
 
@@ -70,7 +70,7 @@ def run(case: str, h: float, ppc: int, extra: dict, label: str) -> dict:
 
 
 def existing(npz_dir: Path, series=("ppc=3", "default", "ppc=1")) -> None:
-    """Records of the convergence sweep's runs (docs/bench/converge.json: GIMP at ppc 3, 2, 1, as
+    """Records of the convergence sweep's runs (benchmarks/accuracy/converge.json: GIMP at ppc 3, 2, 1, as
     measured there) with the same figures as ``run``; the thickness in cells from the final
     positions that sweep kept (``npz_dir`` = its OUT/bench/converge)."""
     doc = json.loads((HERE / "converge.json").read_text())
@@ -91,7 +91,7 @@ def existing(npz_dir: Path, series=("ppc=3", "default", "ppc=1")) -> None:
             s = build(cv._config(case, ov))
             gauge = RunoutGauge.of(s.scene, s.info)
             rec = {k: r[k] for k in ("status", "n_particles", "n_steps", "cpu_s", "runout_m", "runout_farthest_m") if k in r}
-            rec.update(label=labels[r["series"]], case=case, h_m=h, ppc=ppc, overrides={}, source="docs/bench/converge.json")
+            rec.update(label=labels[r["series"]], case=case, h_m=h, ppc=ppc, overrides={}, source="benchmarks/accuracy/converge.json")
             rec["grid_nodes"] = int(np.prod(s.scene.grid_shape))
             rec["deposit_cells_across"] = gauge.max_thickness(fin["x"], fin["vol0"], fin["active"]) / h
             _errors(case, rec, np.asarray(r["profile_m"]), h)

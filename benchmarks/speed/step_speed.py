@@ -1,7 +1,7 @@
 """Time one compiled chunk of a scene's steps, in whatever mpmjax ``import`` finds (so that
 ``compare_revisions.sh`` can point PYTHONPATH at another checkout); one JSON line.
 
-    python docs/bench/step_speed.py SCENE STEPS REPEATS [KEY=VALUE ...]
+    python benchmarks/speed/step_speed.py SCENE STEPS REPEATS [KEY=VALUE ...]
 
 SCENE: a built-in scene, a TOML path, or ``mpm88`` (``mpmjax.studies.bench.MPM88``); KEY=VALUE as
 ``mpmjax run --set`` (``numerics.devices=N`` also makes N host devices).  The chunk is

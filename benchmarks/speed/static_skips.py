@@ -1,8 +1,8 @@
 """Measure the static skips of docs/performance.md, "Static skips" (issue 6).
 
-Run from the repository root: ``.venv/bin/python docs/bench/static_skips.py [part ...]`` with parts
+Run from the repository root: ``.venv/bin/python benchmarks/speed/static_skips.py [part ...]`` with parts
 ``rheology``, ``dim``, ``grid``, ``staged`` (default: all), ``mpm88_minimal`` (issue 18 item 2).  Appends one JSON line per measurement
-to docs/bench/static_skips.jsonl.  Timings are of compiled code (compile reported apart), best of
+to benchmarks/speed/static_skips.jsonl.  Timings are of compiled code (compile reported apart), best of
 ``reps`` repetitions; the load average at the start of each measurement is recorded with it.
 """
 
@@ -245,7 +245,7 @@ class _Minimal(NamedTuple):
 def minimal_mpm88(steps: int):
     """``(state, advance)``: a minimal JAX port of the mpm88 step (issue 18 item 2's yardstick).
 
-    The MLS-MPM of docs/bench/taichi_mlsmpm.py written in jax.numpy with nothing else: 128^2
+    The MLS-MPM of benchmarks/speed/taichi_mlsmpm.py written in jax.numpy with nothing else: 128^2
     nodes, 8192 particles, quadratic B-spline, APIC with the pressure impulse p = kappa (1 - J) in
     the affine term, gravity, free-slip walls three cells thick, one scatter-add P2G (mass and
     momentum stacked), float32; ``advance`` runs ``steps`` steps in a ``lax.scan``.
