@@ -132,8 +132,6 @@ def result_figure(result, summary: dict, title: str | None = None, snapshot_time
     ``runout``."""
     # matplotlib only when a plot is made (optional heavy import)
     import matplotlib.pyplot as plt
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
 
     res = load(result)
     frames = res["frames"]
@@ -141,6 +139,45 @@ def result_figure(result, summary: dict, title: str | None = None, snapshot_time
     title = g["name"] if title is None else title
     t = np.asarray(frames["t_s"], float)
     picks = sorted({int(np.argmin(np.abs(t - ts))) for ts in snapshot_times if ts < t[-1]} | {len(t) - 1})
+    dim = frames["x_m"].shape[-1]
+    lam = "lambda" in frames
+    n_side = len(picks) + lam
+    warnings = list(summary.get("warnings") or [])
+    wrows = 0.18 * (len(warnings) + 1) if warnings else 0.0
+    fig = plt.figure(figsize=(11, 1.9 * n_side + 3.6 + wrows), layout="constrained")
+    gs = fig.add_gridspec(
+        n_side + 1 + bool(warnings), 2, height_ratios=[1.0] * n_side + [1.9] + ([wrows / 1.9] if warnings else []),
+        width_ratios=[1.35, 1.0],
+    )
+    _side_views(fig, gs, res, g, picks)
+    _thickness_panel(fig.add_subplot(gs[n_side, 0]), res, g, summary)
+    _runout_panel(fig.add_subplot(gs[n_side, 1]), summary)
+
+    facts = [f"{dim}D"]
+    for key, fmt in (("n_particles", "{} particles"), ("cell_size_m", "h = {:g} m"), ("dt_s", "dt = {:.3g} s"),
+                     ("t_end_s", "t_end = {:g} s")):
+        if summary.get(key) is not None:
+            facts.append(fmt.format(summary[key]))
+    fig.suptitle(f"{title}: " + ", ".join(facts), fontsize=10)
+    if warnings:
+        axw = fig.add_subplot(gs[n_side + 1, :])
+        axw.set_label("warnings")
+        axw.axis("off")
+        lines = [f"{len(warnings)} warning(s), in full in summary.json 'warnings':"]
+        lines += [textwrap.shorten("• " + w, 180, placeholder=" …") for w in warnings]
+        axw.text(0.0, 1.0, "\n".join(lines), fontsize=7, va="top", ha="left", color="#a00000", transform=axw.transAxes)
+    return fig
+
+
+def _side_views(fig, gs, res, g: dict, picks: list[int]) -> None:
+    """``result_figure``'s side views at the frames ``picks`` on one viscosity scale (grid rows 0..),
+    and for Coussot runs the last frame coloured by λ in the row after them."""
+    # matplotlib only when a plot is made (optional heavy import)
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    frames = res["frames"]
+    t = np.asarray(frames["t_s"], float)
     dim = frames["x_m"].shape[-1]
     vert = dim - 1
     vname = "y" if vert == 1 else "z"
@@ -155,14 +192,6 @@ def result_figure(result, summary: dict, title: str | None = None, snapshot_time
     xlim = (x0 - 0.02 * max(abs(xmax), 1e-9), xmax + 0.05 * max(abs(xmax), 1e-9))
     ylim = (z0 - 0.05 * max(abs(zmax), 1e-9), zmax + 0.15 * max(abs(zmax), 1e-9))
     lam = "lambda" in frames
-    n_side = len(picks) + lam
-    warnings = list(summary.get("warnings") or [])
-    wrows = 0.18 * (len(warnings) + 1) if warnings else 0.0
-    fig = plt.figure(figsize=(11, 1.9 * n_side + 3.6 + wrows), layout="constrained")
-    gs = fig.add_gridspec(
-        n_side + 1 + bool(warnings), 2, height_ratios=[1.0] * n_side + [1.9] + ([wrows / 1.9] if warnings else []),
-        width_ratios=[1.35, 1.0],
-    )
     size = float(np.clip(4000.0 / max(int(act_all[-1].sum()), 1), 0.5, 12.0))
     side_axes = []
     for r, k in enumerate(picks):
@@ -203,8 +232,13 @@ def result_figure(result, summary: dict, title: str | None = None, snapshot_time
         side_axes.append(ax)
     side_axes[-1].set_xlabel("x [m]")
 
-    # thickness profiles, coloured by time
-    axp = fig.add_subplot(gs[n_side, 0])
+
+def _thickness_panel(axp, res, g: dict, summary: dict) -> None:
+    """``result_figure``'s thickness profiles (``result_profiles``), coloured by time, on ``axp``."""
+    # matplotlib only when a plot is made (optional heavy import)
+    import matplotlib.pyplot as plt
+
+    dim = res["frames"]["x_m"].shape[-1]
     axp.set_label("profiles")
     xp, profs = result_profiles(res, runout=summary.get("runout_m"))
     cmap = plt.get_cmap("plasma")  # in time order: dark (first) to orange (last)
@@ -229,8 +263,10 @@ def result_figure(result, summary: dict, title: str | None = None, snapshot_time
     axp.grid(alpha=0.3)
     axp.legend(fontsize=7, loc="upper right", title="time (colour)", title_fontsize=7)
 
-    # runout against time
-    axr = fig.add_subplot(gs[n_side, 1])
+
+def _runout_panel(axr, summary: dict) -> None:
+    """``result_figure``'s runout against time (free-surface front and farthest particle) with the
+    final value and, where the front nears it, the domain wall, on ``axr``."""
     axr.set_label("runout")
     ts, front = summary["times_s"], summary["runout_m"]
     axr.plot(ts, front, "-o", ms=3, label="free-surface front (headline)")
@@ -252,21 +288,6 @@ def result_figure(result, summary: dict, title: str | None = None, snapshot_time
     axr.set_ylabel("runout [m]")
     axr.ticklabel_format(axis="y", useOffset=False)
     axr.grid(True, alpha=0.3)
-
-    facts = [f"{dim}D"]
-    for key, fmt in (("n_particles", "{} particles"), ("cell_size_m", "h = {:g} m"), ("dt_s", "dt = {:.3g} s"),
-                     ("t_end_s", "t_end = {:g} s")):
-        if summary.get(key) is not None:
-            facts.append(fmt.format(summary[key]))
-    fig.suptitle(f"{title}: " + ", ".join(facts), fontsize=10)
-    if warnings:
-        axw = fig.add_subplot(gs[n_side + 1, :])
-        axw.set_label("warnings")
-        axw.axis("off")
-        lines = [f"{len(warnings)} warning(s), in full in summary.json 'warnings':"]
-        lines += [textwrap.shorten("• " + w, 180, placeholder=" …") for w in warnings]
-        axw.text(0.0, 1.0, "\n".join(lines), fontsize=7, va="top", ha="left", color="#a00000", transform=axw.transAxes)
-    return fig
 
 
 def plot_result(path_png, result, summary: dict, title: str | None = None, snapshot_times=(1.0, 5.0)):
