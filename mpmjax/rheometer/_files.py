@@ -83,8 +83,6 @@ def write_outputs(out_dir, params, rates, t_s) -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
-    # matplotlib only when files are written (optional heavy import)
-    import matplotlib.pyplot as plt
 
     params = _as_float_params(params)
     validate_params(params)
@@ -111,78 +109,15 @@ def write_outputs(out_dir, params, rates, t_s) -> dict:
     ]
     steady = [_steady_entry(law, params, r) for r in rates]
 
-    gc = tc = None
-    crit = None
-    crit_note = None
-    if not coussot:
-        crit_note = f"the critical point is computed for the Coussot law only (law: {law.name})"
-    elif float(params.n) > 1.0:
-        n = float(params.n)
-        gc, tc = (float(x) for x in critical_point(params))
-        mu_c_uncapped = float(params.mu0) * (1.0 + 1.0 / (n - 1.0))
-        crit = {
-            "gamma_dot_c_1_s": gc,
-            "tau_c_pa": tc,
-            "mu_ss_c_pa_s": min(mu_c_uncapped, float(params.mu_max)),
-            "cap_active": mu_c_uncapped >= float(params.mu_max),
-        }
-    else:
-        crit_note = f"no flow-curve minimum for n = {float(params.n):g} <= 1"
+    crit, crit_note = _critical(law, params)
+    gc, tc = (crit["gamma_dot_c_1_s"], crit["tau_c_pa"]) if crit else (None, None)
 
     files = ["viscosity_vs_time.png", "flow_curve.png", "rheometer.csv", "rheometer.json"]
     columns = _csv_columns(law)
 
-    # CSV
-    with open(os.path.join(out_dir, "rheometer.csv"), "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(columns)
-        for res in results:
-            cols = [res.t_s, res.gamma_dot_1_s, *(res.internal[i.name] for i in law.internals), res.mu_pa_s, res.tau_pa]
-            for row in zip(*(np.asarray(c) for c in cols)):
-                w.writerow([f"{float(v):.12g}" for v in row])
-
-    # Viscosity vs time
-    shown = ", ".join(
-        f"{p.name}={float(getattr(params, p.name)):g}" + ("" if p.unit == "-" else f" {p.unit}")
-        for p in law.params
-        if p.name not in ("rho", "kappa")
-    )
-    fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    for res, r, st in zip(results, rates, steady):
-        (line,) = ax.loglog(np.asarray(res.t_s), np.asarray(res.mu_pa_s), label=f"{r:g} 1/s")
-        ax.axhline(st["mu_ss_pa_s"], color=line.get_color(), ls=":", lw=0.8)
-    ax.set_xlabel("time t [s]")
-    ax.set_ylabel("viscosity mu [Pa s]")
-    ax.set_title(f"{law.name}: {shown}", fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(title="shear rate", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out_dir, "viscosity_vs_time.png"), dpi=120)
-    plt.close(fig)
-
-    # Flow curve
-    lo = min(rates + ([gc] if gc else [])) / 30.0
-    hi = max(rates + ([gc] if gc else [])) * 30.0
-    g = np.logspace(np.log10(lo), np.log10(hi), 400)
-    tau_g, _ = steady_flow_curve(params, g)
-    fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    ax.loglog(g, np.asarray(tau_g), "k-", label="steady tau_ss")
-    if "mu_max" in params._fields:
-        tau_free, _ = steady_flow_curve(params._replace(mu_max=jnp.asarray(np.inf, params.mu_max.dtype)), g)
-        if not np.allclose(np.asarray(tau_free), np.asarray(tau_g)):
-            ax.loglog(g, np.asarray(tau_free), color="0.6", ls="--", lw=0.8, label="without cap mu_max")
-    ax.loglog(rates, [s["tau_ss_pa"] for s in steady], "o", mfc="none", label="rheometer rates")
-    if gc is not None:
-        ax.loglog([gc], [tc], "r*", ms=12, label=f"critical point ({gc:.3g} 1/s, {tc:.3g} Pa)")
-        ax.axvline(gc, color="r", ls=":", lw=0.8)
-    ax.set_xlabel("shear rate gdot [1/s]")
-    ax.set_ylabel("steady shear stress tau_ss [Pa]")
-    ax.set_title(f"{law.name}: steady flow curve tau_ss = mu_ss(gdot) gdot", fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(os.path.join(out_dir, "flow_curve.png"), dpi=120)
-    plt.close(fig)
+    _write_csv(os.path.join(out_dir, "rheometer.csv"), law, columns, results)
+    _plot_viscosity(os.path.join(out_dir, "viscosity_vs_time.png"), law, params, rates, results, steady)
+    _plot_flow_curve(os.path.join(out_dir, "flow_curve.png"), law, params, rates, steady, gc, tc)
 
     doc = (type(law).__doc__ or law.name).strip().splitlines()[0]
     meta = {
@@ -207,3 +142,90 @@ def write_outputs(out_dir, params, rates, t_s) -> dict:
     with open(os.path.join(out_dir, "rheometer.json"), "w") as f:
         json.dump(meta, f, indent=2)
     return meta
+
+
+def _critical(law: Law, params) -> tuple[dict | None, str | None]:
+    """rheometer.json's critical point (Coussot with n > 1: the flow curve's minimum) and, where
+    there is none, the note saying why."""
+    coussot = isinstance(law, Coussot)
+    crit = None
+    crit_note = None
+    if not coussot:
+        crit_note = f"the critical point is computed for the Coussot law only (law: {law.name})"
+    elif float(params.n) > 1.0:
+        n = float(params.n)
+        gc, tc = (float(x) for x in critical_point(params))
+        mu_c_uncapped = float(params.mu0) * (1.0 + 1.0 / (n - 1.0))
+        crit = {
+            "gamma_dot_c_1_s": gc,
+            "tau_c_pa": tc,
+            "mu_ss_c_pa_s": min(mu_c_uncapped, float(params.mu_max)),
+            "cap_active": mu_c_uncapped >= float(params.mu_max),
+        }
+    else:
+        crit_note = f"no flow-curve minimum for n = {float(params.n):g} <= 1"
+    return crit, crit_note
+
+
+def _write_csv(path, law: Law, columns, results) -> None:
+    """rheometer.csv: ``columns``, one block of rows per rate's ``RheometerResult``."""
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(columns)
+        for res in results:
+            cols = [res.t_s, res.gamma_dot_1_s, *(res.internal[i.name] for i in law.internals), res.mu_pa_s, res.tau_pa]
+            for row in zip(*(np.asarray(c) for c in cols)):
+                w.writerow([f"{float(v):.12g}" for v in row])
+
+
+def _plot_viscosity(path, law: Law, params, rates, results, steady) -> None:
+    """viscosity_vs_time.png: mu(t) log-log, one curve per rate, steady values dotted."""
+    # matplotlib only when files are written (optional heavy import)
+    import matplotlib.pyplot as plt
+
+    shown = ", ".join(
+        f"{p.name}={float(getattr(params, p.name)):g}" + ("" if p.unit == "-" else f" {p.unit}")
+        for p in law.params
+        if p.name not in ("rho", "kappa")
+    )
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    for res, r, st in zip(results, rates, steady):
+        (line,) = ax.loglog(np.asarray(res.t_s), np.asarray(res.mu_pa_s), label=f"{r:g} 1/s")
+        ax.axhline(st["mu_ss_pa_s"], color=line.get_color(), ls=":", lw=0.8)
+    ax.set_xlabel("time t [s]")
+    ax.set_ylabel("viscosity mu [Pa s]")
+    ax.set_title(f"{law.name}: {shown}", fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(title="shear rate", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _plot_flow_curve(path, law: Law, params, rates, steady, gc, tc) -> None:
+    """flow_curve.png: tau_ss(gdot) log-log, the rates measured, the critical point ``(gc, tc)`` if any."""
+    # matplotlib only when files are written (optional heavy import)
+    import matplotlib.pyplot as plt
+
+    lo = min(rates + ([gc] if gc else [])) / 30.0
+    hi = max(rates + ([gc] if gc else [])) * 30.0
+    g = np.logspace(np.log10(lo), np.log10(hi), 400)
+    tau_g, _ = steady_flow_curve(params, g)
+    fig, ax = plt.subplots(figsize=(6.4, 4.6))
+    ax.loglog(g, np.asarray(tau_g), "k-", label="steady tau_ss")
+    if "mu_max" in params._fields:
+        tau_free, _ = steady_flow_curve(params._replace(mu_max=jnp.asarray(np.inf, params.mu_max.dtype)), g)
+        if not np.allclose(np.asarray(tau_free), np.asarray(tau_g)):
+            ax.loglog(g, np.asarray(tau_free), color="0.6", ls="--", lw=0.8, label="without cap mu_max")
+    ax.loglog(rates, [s["tau_ss_pa"] for s in steady], "o", mfc="none", label="rheometer rates")
+    if gc is not None:
+        ax.loglog([gc], [tc], "r*", ms=12, label=f"critical point ({gc:.3g} 1/s, {tc:.3g} Pa)")
+        ax.axvline(gc, color="r", ls=":", lw=0.8)
+    ax.set_xlabel("shear rate gdot [1/s]")
+    ax.set_ylabel("steady shear stress tau_ss [Pa]")
+    ax.set_title(f"{law.name}: steady flow curve tau_ss = mu_ss(gdot) gdot", fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
