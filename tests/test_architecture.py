@@ -12,6 +12,13 @@
   submodules (no ``mpmjax._private``).
 * Imports inside functions are only the optional heavy ones (matplotlib), each with a
   comment on its line or the line before saying why.
+* No upward import between the library's layers (issue 34): the core (scenes, the step, I/O,
+  metrics) imports neither the plots, the rheometer nor the run driver; the plots and the
+  rheometer do not import the driver; the driver does not import the command line, the studies
+  or the ``mpmjax`` package itself, which only re-export.
+* The modules of a package split by concept (``mpmjax._driver``, ``mpmjax.plotting``,
+  ``mpmjax.rheometer``) import each other and the layers below, never their own package (its
+  ``__init__`` only re-exports them).
 """
 
 from __future__ import annotations
@@ -179,3 +186,52 @@ def test_imports_inside_functions_are_optional_heavy_ones_with_a_reason():
             elif not _has_reason(lines, line - 1):
                 bad.append(here + " without a comment saying why")
     assert not bad, bad
+
+
+# the library's layers, lowest first: a module may import its own layer and the ones below
+SPLIT_PACKAGES = ("mpmjax._driver", "mpmjax.plotting", "mpmjax.rheometer")
+
+
+def _in(m: str, pkg: str) -> bool:
+    return m == pkg or m.startswith(pkg + ".")
+
+
+def _layer(m: str) -> int | None:
+    """0 the core, 1 the plots and the rheometer, 2 the run driver, 3 the package's re-exports,
+    the command line and the studies; None for ``calibration`` (a client, checked above)."""
+    if m in ("mpmjax", "mpmjax.cli") or _is_study(m):
+        return 3
+    if _in(m, "mpmjax._driver"):
+        return 2
+    if _in(m, "mpmjax.plotting") or _in(m, "mpmjax.rheometer"):
+        return 1
+    return 0 if _in(m, "mpmjax") else None
+
+
+def test_the_layers_are_what_the_packages_are():
+    assert {m for m in MODULES if _layer(m) == 2} >= {"mpmjax._driver", "mpmjax._driver.run", "mpmjax._driver.loop"}
+    assert {m for m in MODULES if _layer(m) == 1} >= {"mpmjax.plotting", "mpmjax.plotting._report", "mpmjax.rheometer"}
+    assert _layer("mpmjax._step") == 0 and _layer("mpmjax.studies.stress") == 3 and _layer("calibration.fit") is None
+
+
+def test_no_upward_import_between_layers():
+    bad = [
+        f"{m} (layer {_layer(m)}) imports {o} (layer {_layer(o)})"
+        for m, deps in GRAPH.items()
+        if _layer(m) is not None
+        for o in deps
+        if _layer(o) is not None and _layer(o) > _layer(m)
+    ]
+    assert not bad, bad
+
+
+def test_split_packages_import_their_modules_not_themselves():
+    bad = [
+        f"{m} imports {pkg}"
+        for pkg in SPLIT_PACKAGES
+        for m, deps in GRAPH.items()
+        if m.startswith(pkg + ".") and pkg in deps
+    ]
+    assert not bad, bad
+    for pkg in SPLIT_PACKAGES:  # a package, not a module: the split is still there
+        assert any(m.startswith(pkg + ".") for m in MODULES), pkg

@@ -117,7 +117,7 @@ def test_predicted_std_after_the_top_candidate_matches_the_refit():
     doubles the information in all three directions) above the low (1.01) and high (1.18) rates,
     which mostly add one direction each.  Flow curves (closed-form model) keep this cheap
     (34 s CPU, mostly compiling the two fits); the dam-break twin with a rheometer transient is in
-    docs/bench/design_twin.py."""
+    benchmarks/calibration/design_twin.py."""
     mat = _material()
     mid = np.geomspace(0.3, 30.0, 4)
 

@@ -155,8 +155,8 @@ def test_folder_unwritable_mid_run_marks_failed_and_keeps_frames(tmp_path, monke
 
     def on_frame(k, st):
         if k == 2:
-            monkeypatch.setattr(_driver, "_write_ckpt", _deny)
-            monkeypatch.setattr(_driver, "atomic_write_text", _deny)
+            monkeypatch.setattr(_driver.resume, "_write_ckpt", _deny)  # the checkpoints
+            monkeypatch.setattr(_driver.summary, "atomic_write_text", _deny)  # summary.json
 
     with pytest.raises(_driver.OutputFailure) as e:
         mpmjax.run_scene("dambreak-lab", out, SMALL, quiet=True, checkpoint_every=1, on_frame=on_frame)
@@ -175,13 +175,14 @@ def test_folder_unwritable_mid_run_marks_failed_and_keeps_frames(tmp_path, monke
 
 _MIDRUN = """
 import errno, sys
-from mpmjax import _driver, cli
-real = _driver._write_ckpt
+from mpmjax import cli
+from mpmjax._driver import resume
+real = resume._write_ckpt
 def ckpt(path, st, frame, *a):
     if frame >= 3:
         raise PermissionError(errno.EACCES, "Permission denied", str(path))
     return real(path, st, frame, *a)
-_driver._write_ckpt = ckpt
+resume._write_ckpt = ckpt
 sys.exit(cli.main(sys.argv[1:]))
 """
 

@@ -117,7 +117,7 @@ def test_thin_deposit_excess_is_mostly_removed(deposits):
     assert r5 - 1.0 < (r0 - 1.0) / 3
 
 
-# --- the particles-per-cell dependence of a yield-stress deposit (docs/bench/ppc_probe.md) ---
+# --- the particles-per-cell dependence of a yield-stress deposit (benchmarks/accuracy/ppc_probe.md) ---
 
 
 def _slump(h: float, ppc: int, cap: float):
@@ -132,7 +132,7 @@ def _slump(h: float, ppc: int, cap: float):
 
 
 def test_deposit_packing_reads_the_packing_against_J():
-    """``studies.converge.deposit_packing``, the overpacking measure of docs/bench/ppc_probe.md, on
+    """``studies.converge.deposit_packing``, the overpacking measure of benchmarks/accuracy/ppc_probe.md, on
     lattices whose answer is known: particles on the seeding lattice with J = 1 read 1; the same
     particles squeezed to half the height read 2 when J still says 1 (the overpacking the measure is
     for) and 1 when J says 0.5.  Bins of 2h hold whole lattice rows here, so the answers are exact."""
@@ -154,7 +154,7 @@ def test_slump_at_one_particle_per_cell_is_packed_as_its_J_says_with_the_check()
     of the velocity divergence at the particles, the spacing that of the velocity between them;
     gravity rectifies the difference into compaction).  At h = 0.025 m (8 cells over the block,
     64 particles) the deposit holds 1.28 x the volume per area its J says, and its front is 10 %
-    short of the exact one; the grid volume check (cap 0.05) holds it at 0.93 (docs/bench/ppc_probe.md).
+    short of the exact one; the grid volume check (cap 0.05) holds it at 0.93 (benchmarks/accuracy/ppc_probe.md).
 
     Tolerance: a bin of 2h holds 4 particles at ppc 1, so a bin's packing moves in steps of 1/4
     and the ~10 interior bins average to about +-0.08; 1.15 and 1 +- 0.1 separate the two states

@@ -1,0 +1,55 @@
+"""SIGINT/SIGTERM during a run: ``Interrupted``, and ``Signals``, which holds them back while a
+frame and its checkpoint are being written."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT (Ctrl-C) or SIGTERM; ``message`` says how to resume it."""
+
+    def __init__(self, signum: int, message: str = ""):
+        super().__init__(message)
+        self.signum, self.message = signum, message
+
+
+class Signals:
+    """Turn SIGINT/SIGTERM into ``Interrupted`` and hold them back while a frame and its
+    checkpoint are being written (``with sig.hold():``), so that the files on disk always
+    match the state in memory.  Only installed in the main thread (Python delivers signals
+    there only)."""
+
+    def __init__(self):
+        self.pending = None
+        self.depth = 0
+        self.old = {}
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self.old[s] = signal.signal(s, self._handler)
+
+    def _handler(self, signum, frame):
+        if self.depth:
+            self.pending = signum
+        else:
+            raise Interrupted(signum)
+
+    def hold(self):
+        @contextlib.contextmanager
+        def cm():
+            self.depth += 1
+            try:
+                yield
+            finally:
+                self.depth -= 1
+            if not self.depth and self.pending is not None:
+                signum, self.pending = self.pending, None
+                raise Interrupted(signum)
+
+        return cm()
+
+    def restore(self):
+        for s, h in self.old.items():
+            signal.signal(s, h)

@@ -1,0 +1,173 @@
+"""summary.json: one builder for every status (``status_summary``: running, interrupted, failed,
+complete), the facts every status carries (``base_summary``), the complete run's metrics
+(``complete_summary``, ``_scenario_metrics``) and the two ways it is written (``write_summary``;
+``write_summary_anyway``, which falls back to rewriting the file in place)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from .. import _metrics
+from .._io import _jsonable, atomic_write_text
+from .._version import __version__
+
+
+def base_summary(cfg: dict, source: str, overrides: list, setup, warnings: list) -> dict:
+    """The facts of the run that summary.json has whatever its status."""
+    sc, info = setup.scene, setup.info
+    return {
+        "scene": cfg["name"],
+        "scene_source": source,
+        "overrides": overrides,
+        "dim": sc.dim,
+        "n_particles": sc.n_particles,
+        "n_steps": sc.n_steps,
+        "dt_s": sc.dt,
+        "t_end_s": sc.t_end,
+        "warnings": warnings,
+        # map placement (scene = map - map_origin_m) and the breach release's volumes (docs/output.md)
+        **{k: info[k] for k in ("map", "release") if k in info},
+    }
+
+
+def status_summary(base: dict, status: str, complete: bool = False, **fields) -> dict:
+    """summary.json of a run in ``status`` ("running", "interrupted", "failed", "complete"): the
+    ``base_summary`` facts, the status, the status's own ``fields`` in the order given, and
+    ``complete`` last."""
+    return dict(base, status=status, **fields, complete=complete)
+
+
+def write_summary(path: Path, doc: dict) -> None:
+    """Write summary.json atomically (an ``OSError`` where that fails)."""
+    atomic_write_text(path, json.dumps(doc, indent=2))
+
+
+def write_summary_anyway(path: Path, doc: dict) -> bool:
+    """Write summary.json; if the folder no longer takes new files (the atomic write needs a
+    temporary file), rewrite the existing summary.json in place.  Returns whether it worked."""
+    text = json.dumps(_jsonable(doc), indent=2)
+    try:
+        atomic_write_text(path, text)
+        return True
+    except OSError:
+        pass
+    try:
+        with open(path, "r+") as f:
+            f.write(text)
+            f.truncate()
+        return True
+    except OSError:
+        return False
+
+
+def _scenario_metrics(setup, state, times, kinetic) -> dict:
+    """summary.json scenario metrics (definitions in docs/output.md and mpmjax._metrics):
+    kinetic energy per frame, time to rest (1 % of the peak kinetic energy), mobilised
+    fraction (share of the final material displaced by more than one cell size h from where
+    it started or was released), the final free-surface profile along the runout axis (bins of
+    width h over the domain; null where empty) and its beach slope."""
+    sc, info = setup.scene, setup.info
+    axis = info["runout_axis"]
+    # inflow pool particles are parked where they are released (half a layer behind the exit)
+    moved_from = np.asarray(setup.state.x)
+    x, act = np.asarray(state.x), np.asarray(state.active)
+    edges = np.arange(sc.lo[axis], sc.hi[axis] + 0.5 * sc.h, sc.h)
+    xc, top = _metrics.surface_profile(x, act, edges, info["particle_spacing_m"], axis=axis)
+    slope = _metrics.beach_slope(xc, top, bed=sc.lo[-1], min_depth_m=info["particle_spacing_m"])
+
+    def fin(a):
+        return float(a) if np.isfinite(a) else None
+
+    return {
+        "kinetic_energy_J": kinetic,
+        "kinetic_energy_unit": "J per metre of depth" if sc.dim == 2 else "J",
+        "time_to_rest_s": fin(_metrics.time_to_rest(times, kinetic, rel_threshold=0.01)),
+        "mobilised_fraction": fin(_metrics.mobilised_fraction(moved_from, x, act, sc.h, vol0=np.asarray(state.vol0))),
+        "mobilised_distance_m": sc.h,
+        "surface_profile_x_m": [float(a) for a in xc],
+        "surface_profile_z_m": [fin(a) for a in top],
+        "beach_slope": fin(slope),
+    }
+
+
+def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: float, gauge) -> tuple[dict, str | None]:
+    """summary.json of a complete run (before the hazard and plan-view parts are added), and the
+    warning on the final deposit's resolution (None where it is resolved; also added to
+    "warnings").  ``schedule``: the particles stepped per frame; ``gauge``: the runout gauge."""
+    sc, info = setup.scene, setup.info
+    rho = float(setup.params.material.rho)
+    wall = acc["wall_s"]
+    times, fronts, kinetic = acc["times"], acc["fronts"], acc["kinetic"]
+    mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
+    thick = gauge.max_thickness(state.x, state.vol0, state.active)
+    summary = status_summary(
+        base,
+        "complete",
+        complete=True,
+        wall_s=wall,
+        compile_s=compile_s,
+        # particle-steps actually stepped: a staged pipe pour steps a prefix of the buffer per frame
+        particle_steps_per_s=sum(schedule) * sc.steps_per_frame / wall,
+        particles_stepped_mean=sum(schedule) / len(schedule),
+        mass_initial_kg=acc["mass0"],
+        mass_final_kg=mass1,
+        mass_unit="kg per metre of depth" if sc.dim == 2 else "kg",
+        n_lost=int(state.n_lost),
+        n_outflow=acc["n_outflow"],
+        times_s=times,
+        runout_m=fronts,
+        final_runout_m=fronts[-1],
+        runout_farthest_particle_m=acc["farthest"],
+        final_runout_farthest_particle_m=acc["farthest"][-1],
+        **_scenario_metrics(setup, state, times, kinetic),
+        runout_definition=gauge.definition(),
+        runout_farthest_particle_definition=gauge.farthest_definition(),
+        runout_front_fraction=gauge.fraction,
+        # the domain face the runout runs towards, measured like the runout; a front within one cell
+        # of it was stopped by the wall, not by the material (docs/output.md "Runout")
+        runout_wall_m=sc.hi[gauge.axis] - gauge.origin,
+        runout_capped_by_wall=bool(max(fronts[-1], acc["farthest"][-1]) >= sc.hi[gauge.axis] - gauge.origin - sc.h),
+        # resolution across the deposit (docs/output.md "Runout"; the needed number: docs/validation.md)
+        deposit_max_thickness_m=thick,
+        deposit_cells_across=thick / sc.h,
+        deposit_cells_across_needed=_metrics.DEPOSIT_CELLS_NEEDED,
+        dt_limits={
+            k: info[k]
+            for k in (
+                "dt_wave_s",
+                "dt_viscous_s",
+                "dt_limit_s",
+                "wave_speed_m_s",
+                "velocity_scale_m_s",
+                "maxwell_G_pa",
+                "mu_max_pa_s",
+            )
+        },
+        grid_shape=list(sc.grid_shape),
+        cell_size_m=sc.h,
+        code_version=__version__,
+        jax_backend=jax.default_backend(),
+    )
+    warning = _deposit_warning(summary["deposit_cells_across"], thick, sc.h)
+    if warning is not None:
+        summary["warnings"] = list(summary.get("warnings", [])) + [warning]
+    return summary, warning
+
+
+def _deposit_warning(cells: float, thick: float, h: float) -> str | None:
+    """The warning for a final deposit fewer than ``_metrics.DEPOSIT_CELLS_NEEDED`` cells thick."""
+    if not 0 < cells < _metrics.DEPOSIT_CELLS_NEEDED:
+        return None
+    return (
+        f"the final deposit is {cells:.1f} cells thick at its thickest point "
+        f"(deposit_cells_across; {thick:.3g} m at domain.cell_size_m = {h:g} m); the convergence benchmark "
+        f"needs >= {_metrics.DEPOSIT_CELLS_NEEDED} for a runout within about 5 % (docs/validation.md, 'Convergence "
+        f"benchmark'): set domain.cell_size_m <= {thick / _metrics.DEPOSIT_CELLS_NEEDED:.3g} m, the cheapest remedy "
+        "that converges (docs/validation.md, 'Depth resolution': more particles per cell do not pay; a domain.hi_m "
+        "cropped to where the material goes saves the grid's few per cent; boundary.slip_length_m = "
+        f"{0.25 * h:.3g} m (h/4) cut the shortfall by 15-30 % there at no cost, but changes the bed's physics)"
+    )
