@@ -372,7 +372,7 @@ def fit(
 
     gradient: ``"reverse"``, ``"forward"`` (see :func:`forward_mode_gradient`) or ``"auto"``
     (default): forward mode for up to ``FORWARD_MODE_MAX_PARAMS`` free parameters.  Measured on
-    the twin scene (2-core CPU, float64; docs/bench/gradient_modes.py): value and gradient cost
+    the twin scene (2-core CPU, float64; benchmarks/gradient/gradient_modes.py): value and gradient cost
     3.1-3.3 loss evaluations in forward mode against 4.2-4.4 in reverse mode for 2 parameters,
     7.7 against 4.2-4.4 for 5; about 0.1 + 1.5 k against 4.3, so forward mode wins up to k = 2.
     (Before the reverse pass's fusion boundaries and kept states, docs/performance.md: reverse

@@ -111,7 +111,7 @@ _HEAD: dict[str, Key] = {
         "Particles per cell per axis for seeded bodies. 3 (the default) is the cheapest count at which a yield-stress "
         "deposit stays packed as its J says; at 2 it packs up to 14 % denser and stops short (the lab dam break: "
         "1.19 m against 1.28 m at h = 1 cm), at 1 it stops 10-30 % short (docs/validation.md, convergence benchmark; "
-        "docs/bench/ppc_probe.md).",
+        "benchmarks/accuracy/ppc_probe.md).",
         lo=1,
         hi=8,
     ),
@@ -166,7 +166,7 @@ _HEAD: dict[str, Key] = {
         "particle. It keeps deposits at the volume their J says: thin pipe-fed deposits, and yield-stress deposits "
         "at low ppc, whose overpacking makes their runout depend on ppc (Bingham slump at 16 cells, cap 0.05: "
         "ppc 2 / 3 within 0.2 % of the exact front, against -2.4 / -0.5 % without). It lengthens dambreak-lab "
-        "(1.37 m instead of 1.19 m at h = 0.01 m); see docs/bench/ppc_probe.md and docs/scenarios.md, overpacking.",
+        "(1.37 m instead of 1.19 m at h = 0.01 m); see benchmarks/accuracy/ppc_probe.md and docs/scenarios.md, overpacking.",
         lo=0.0,
         hi=1.0,
     ),

@@ -211,7 +211,7 @@ def deposit_packing(x, J, vol0, cell_m: float) -> float:
     upper neighbours hold particles (the interior and the bottom row; bins at the free surface
     and the tip are partly empty and left out).  1 where the particles are spaced as their J
     says; above 1 they have closed up without J registering it (overpacking,
-    docs/bench/ppc_probe.md).  ``x`` (n, 2) [m], ``J`` (n,), ``vol0`` (n,) [m^2], active only."""
+    benchmarks/accuracy/ppc_probe.md).  ``x`` (n, 2) [m], ``J`` (n,), ``vol0`` (n,) [m^2], active only."""
     b = 2.0 * cell_m
     ix, iy = np.floor(x[:, 0] / b).astype(int), np.floor(x[:, 1] / b).astype(int)
     vol = np.zeros((ix.max() + 2, iy.max() + 2))
