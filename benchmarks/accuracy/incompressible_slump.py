@@ -1,0 +1,55 @@
+"""Inertia-free Bingham slump (Galileo number 1) against the lubrication static front
+x_inf (REFERENCE.md: Balmforth et al. 2006, Matson & Hogg 2007): a block H0 = 0.1 m high and
+L = aspect H0 long against a symmetry wall, no-slip bed, tau_y from the Bingham number
+B = tau_y L/(rho g H0^2); prints the front per frame and its error as one JSON line
+(docs/validation.md, "Incompressible limit").
+
+    .venv/bin/python benchmarks/accuracy/incompressible_slump.py B ASPECT CELLS_OVER_H0 T_END [key=value ...]
+    .venv/bin/python benchmarks/accuracy/incompressible_slump.py 0.05 1 16 20 numerics.pressure=incompressible
+"""
+import json
+import math
+import sys
+import time
+
+import numpy as np, jax
+import mpmjax as m
+from mpmjax._metrics import RunoutGauge
+# usage: slump.py B aspect(L/H0) cells_over_H0 t_end [key=val ...]
+B, asp, cells, t_end = float(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+over = sys.argv[5:]
+rho, g, H0 = 1000.0, 9.81, 0.1
+L = asp * H0
+tau = B * rho * g * H0**2 / L
+mu = math.sqrt(rho**2 * g * H0**3)  # Galileo number 1
+xinf = (L + rho*g*H0**2/(6*tau)) if B >= 1/3 else (9*rho*g*H0**2*L**2/(8*tau))**(1/3)
+h = H0 / cells
+dom_x = math.ceil(1.4 * xinf / h) * h
+raw = {"domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [dom_x, math.ceil(1.5*H0/h)*h], "cell_size_m": h},
+ "boundary": {"x_lo": "symmetry", "x_hi": "slip", "y_lo": "noslip", "y_hi": "slip"},
+ "time": {"t_end_s": t_end, "n_frames": 20},
+ "material": {"model": "bingham", "density_kg_m3": rho, "bulk_modulus_pa": 50*rho*g*H0, "viscosity_pa_s": mu,
+              "yield_stress_pa": tau, "papanastasiou_m_s": 1e4},
+ "gravity": {"g_m_s2": g}, "bodies": [{"lo_m": [0.0, 0.0], "hi_m": [L, H0]}]}
+for o in over:
+    k, v = o.split("=", 1); sec, name = k.split(".", 1)
+    try: v = json.loads(v)
+    except Exception: pass
+    raw.setdefault(sec, {})[name] = v
+cfg = m.validate(raw)
+s = m.build(cfg)
+sc = s.scene
+adv = m.make_advance(sc)
+st = s.state
+t0 = time.time(); c0 = time.process_time()
+fronts = []
+gauge = RunoutGauge.of(sc, s.info)
+for f in range(sc.n_frames):
+    st = adv(st, s.params)
+    x = np.asarray(st.x); a = np.asarray(st.active, bool)
+    fronts.append(gauge.front(x, np.asarray(st.vol0), a))
+wall = time.time() - t0; cpu = time.process_time() - c0
+v = np.asarray(st.v)[a]
+print(json.dumps(dict(B=B, asp=asp, cells=cells, over=over, xinf=xinf, front=fronts[-1], err_pct=100*(fronts[-1]-xinf)/xinf,
+      fronts=[round(f_,4) for f_ in fronts], vmax=float(np.abs(v).max()), dt=sc.dt, steps=sc.n_steps, wall=wall, cpu=cpu,
+      J=[float(np.asarray(st.J)[a].min()), float(np.asarray(st.J)[a].max())], lost=int(st.n_lost))))
