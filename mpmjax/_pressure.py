@@ -62,6 +62,7 @@ FLUID_FRACTION = 0.5
 # relative residual of the pressure solve by precision
 CG_RTOL = {"float32": 1e-5, "float64": 1e-11}
 CG_MAXITER = 2000
+# the volume error is corrected at this many times the rate 1/sqrt(h/|g|) (see project)
 VOLUME_RELAXATION = 1.0
 
 
@@ -199,7 +200,12 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
             for sh in (-1, 1):
                 nb = _roll(fluid, sh, a) | ~jnp.asarray(np.roll(valid, sh, axis=a))
                 closed = closed & nb
-        excess = VOLUME_RELAXATION * jnp.where(closed, phi - 1.0, jnp.maximum(phi - 1.0, 0.0))
+        # corrected over the free-fall time across a cell, sqrt(h/|g|), not in one step: the packing
+        # fluctuates by a few per cent as particles cross cells, and a one-step correction turns
+        # that into velocity noise (h/dt x the fluctuation)
+        g_mag = jnp.sqrt(jnp.sum(params.gravity * params.gravity))
+        rate = jnp.minimum(1.0, VOLUME_RELAXATION * scene.dt * jnp.sqrt(g_mag / h))
+        excess = rate * jnp.where(closed, phi - 1.0, jnp.maximum(phi - 1.0, 0.0))
         b = jnp.where(fluid, (vol_c * excess / scene.dt - div(vs)) / scene.dt, 0.0)
         # Jacobi: diag(A)_c = sum over corners i of coef^2 s^T W_i s
         diag = 0.0
