@@ -14,6 +14,8 @@
   (``mpmjax design``); ``profile_likelihood`` (``calibration.profile``): likelihood-ratio intervals
   with the other parameters re-optimised (``mpmjax calibrate --profile``).
 * ``fit_multilevel`` (``calibration.multilevel``): multi-fidelity fit, coarse cell size then finer ones.
+* ``calibrate`` / ``CalibrationResult`` (``calibration.run``): the whole of ``mpmjax calibrate`` as one call
+  (data, experiments, multilevel fit, uncertainty, fit.json and plots by ``calibration.report``).
 * ``sweep`` (``calibration.sweep``): a parameter grid as one ``vmap`` batch, sharded over devices.
 * the differentiable observables (height profile, smooth front, deposited volume), re-exported
   from ``mpmjax`` (``mpmjax._observables``), where the simulator's plots use them too.
@@ -55,11 +57,13 @@ from .fit import FitResult, fit
 from .multilevel import MultilevelResult, experiments_at_cell_size, fit_multilevel
 from .params import DEFAULT_BOUNDS, ParameterSet, ParamSpec
 from .profile import ParameterProfile, profile_likelihood
+from .run import CalibrationResult, calibrate
 from .sweep import sweep
 from .uncertainty import NumericalUncertainty, Uncertainty, combine, gauss_newton, numerical_uncertainty
 
 __all__ = [
     "DEFAULT_BOUNDS",
+    "CalibrationResult",
     "Candidate",
     "DataError",
     "DesignResult",
@@ -80,6 +84,7 @@ __all__ = [
     "ShearTest",
     "TransientExperiment",
     "Uncertainty",
+    "calibrate",
     "combine",
     "deposited_volume",
     "design",

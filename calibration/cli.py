@@ -1,45 +1,23 @@
 """Command-line front ends: ``mpmjax calibrate`` and ``mpmjax sweep`` (registered by ``mpmjax.cli``).
 
-Exit status: 0 success, 2 invalid input (the message names the option or key, the value and
-the allowed range), 130 interrupted (what was already written stays), 1 other errors.
+The options are parsed here and handed to the library: ``calibration.run.calibrate`` and
+``calibration.sweep``.  Exit status: 0 success, 2 invalid input (the message names the option or
+key, the value and the allowed range), 130 interrupted (what was already written stays), 1 other
+errors.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
-from pathlib import Path
-
-import jax
-import numpy as np
 
 import mpmjax
 
-from .data import DataError, load_profiles, load_rest_times, load_runout_series, load_shear_tests
-from .distributed import (
-    DistributedError,
-    check_join_options,
-    check_local_devices,
-    is_writer,
-    join,
-    make_local_devices,
-    parse_shard,
-)
-from .experiments import (
-    FlowCurveExperiment,
-    ProfileExperiment,
-    RestTimeExperiment,
-    RunoutSeriesExperiment,
-    ShearHistoryExperiment,
-    frames_for,
-)
-from .multilevel import check_levels, experiments_at_cell_size, fit_multilevel
-from .params import UNITS, ParameterSet
-from .profile import PROFILE_DEFINITION, check_profile_options, plot_profiles, profile_likelihood
-from .sweep import FIELD_KEYS, merge_parts, parse_vary, sweep, write_part, write_sweep
-from .uncertainty import REL_STD_WARN, identifiability, identifiability_lines
+from .data import DataError
+from .distributed import DistributedError, check_local_devices, is_writer, join, parse_shard
+from .multilevel import check_levels
+from .run import MAX_REFINE, SIGMA_UNITS, calibrate, join_options
+from .sweep import merge_parts, parse_vary, sweep, write_part, write_sweep
 
 USAGE_ERROR = 2
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
@@ -92,12 +70,9 @@ def add_distributed_arguments(p: argparse.ArgumentParser):
 
 
 def _join_options(args):
-    """The validated ``jax.distributed`` options of ``args`` (None for a single-process run); with
-    ``--devices N`` host devices are asked for (``make_local_devices``), so this must run before any
-    JAX computation."""
-    options = check_join_options(args.coordinator, args.num_processes, args.process_id, args.distributed)
-    make_local_devices(getattr(args, "devices", None))
-    return options
+    """The validated ``jax.distributed`` options of ``args`` (``run.join_options``)."""
+    return join_options(args.coordinator, args.num_processes, args.process_id, args.distributed,
+                        getattr(args, "devices", None))
 
 
 def add_calibrate_arguments(p: argparse.ArgumentParser):
@@ -148,6 +123,12 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
         help="gradient mode: forward (one tangent per parameter), reverse, or auto "
         "(forward for <= 2 parameters, measured break-even 2.7)",
     )
+    _add_measurement_arguments(p)
+    _add_level_arguments(p)
+
+
+def _add_measurement_arguments(p: argparse.ArgumentParser):
+    """The measurements besides the profiles, their noise levels and weights."""
     p.add_argument(
         "--sigma-m", type=float, help="profile standard deviation [m] where the data give none (default 5%% of max h)"
     )
@@ -192,6 +173,10 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
         help=f"loss weight of an experiment kind (> 0; overrides its file's weight; default 1): "
         f"{', '.join(SIGMA_UNITS)}",
     )
+
+
+def _add_level_arguments(p: argparse.ArgumentParser):
+    """Multi-fidelity levels, the profile likelihood, the output and the distributed options."""
     lv = p.add_mutually_exclusive_group()
     lv.add_argument(
         "--refine",
@@ -227,480 +212,60 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     add_distributed_arguments(p)
 
 
-# experiment kinds of --sigma / --weight, and the unit of each kind's sigma
-SIGMA_UNITS = {
-    "profiles": "m",
-    "runout-series": "m",
-    "rest-times": "m",
-    "transient": "- (relative, in ln tau)",
-    "flow-curve": "- (relative, in ln tau)",
-}
 
-
-def _per_kind(items, option):
-    """--sigma / --weight KIND=VALUE -> {kind: value > 0}, or ValueError naming the option."""
-    out = _kv(items, option)
-    for k, v in out.items():
-        if k not in SIGMA_UNITS:
-            raise ValueError(f"{option} {k}={v:g}: unknown experiment kind {k!r}; allowed: {', '.join(SIGMA_UNITS)}")
-        if not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{option} {k}={v!r}; allowed range: > 0 and finite [{SIGMA_UNITS[k].split()[0]}]")
-    return out
-
-
-# --refine: at most this many halvings (each costs ~8x the previous level's run in 2D)
-MAX_REFINE = 3
-
-
-def _levels(args, h0):
-    """Cell sizes of the fit's levels [m], coarse to fine, from --levels / --refine."""
-    if args.levels is not None:
-        try:
-            return check_levels([v for v in args.levels.split(",") if v.strip()], "--levels")
-        except ValueError as e:
-            raise ValueError(f"{e} (got {args.levels!r})") from None
-    if not 0 <= args.refine <= MAX_REFINE:
-        raise ValueError(f"--refine = {args.refine}; allowed range: 0 .. {MAX_REFINE} (halvings of the cell size)")
-    return [h0 / 2**i for i in range(args.refine + 1)]
-
-
-def _load_flow_curve(path):
-    path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
-    rows = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    head = [c.strip() for c in rows[0].split(",")]
-    if sorted(head) != ["gamma_dot_1_s", "tau_pa"]:
-        raise DataError(f"{path}: columns {head}; expected gamma_dot_1_s, tau_pa")
+def _levels(text):
+    """--levels H1,H2,... -> the cell sizes [m], or ValueError naming the option and the text."""
+    if text is None:
+        return None
     try:
-        a = np.asarray([[float(v) for v in r.split(",")] for r in rows[1:]])
+        return check_levels([v for v in text.split(",") if v.strip()], "--levels")
     except ValueError as e:
-        raise DataError(f"{path}: {e}") from None
-    return a[:, head.index("gamma_dot_1_s")], a[:, head.index("tau_pa")]
+        raise ValueError(f"{e} (got {text!r})") from None
 
 
-def _scene_overrides(args, times_s, init):
-    """(scene config, overrides) for ``args.scene`` with ``args.set``: frames aligned to the data
-    times ``times_s`` [s] (unless the user set time.t_end_s or time.n_frames) and the scene's
-    material keys set to ``init`` (so range errors name the scene key)."""
-    overrides = list(args.set or [])
-    keys = {o.split("=", 1)[0].strip() for o in overrides}
-    cfg0 = mpmjax.load_scene(args.scene, overrides)
-    if not ({"time.t_end_s", "time.n_frames"} & keys):
-        t_end, nf = frames_for(list(times_s), cfg0["time.t_end_s"], cfg0["time.n_frames"])
-        overrides += [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]
-    for k, v in init.items():
-        if k in FIELD_KEYS:
-            overrides.append(f"{FIELD_KEYS[k]}={v!r}")  # validated as a scene value (range errors name the key)
-    return cfg0, overrides
-
-
-def calibrate(args) -> dict:
-    """Run a calibration from parsed arguments; returns the fit.json document."""
-    out = Path(args.out)
-    join(_join_options(args))  # before any JAX computation; nothing for a single-process run
-    writer = is_writer()  # only process 0 writes --out and prints progress
-    log = (lambda *a: None) if args.quiet or not writer else (lambda *a: print(*a, file=sys.stderr))
-    profiles = load_profiles(args.data)
-    sigmas = _per_kind(args.sigma, "--sigma")
-    weights = _per_kind(args.weight, "--weight")
-    if args.sigma_m is not None:
-        if "profiles" in sigmas:
-            raise ValueError("--sigma-m and --sigma profiles=... both given; give one")
-        sigmas["profiles"] = args.sigma_m
-    series = load_runout_series(args.runout_series) if args.runout_series else None
-    rests = load_rest_times(args.rest_times) if args.rest_times else None
-    shear = load_shear_tests(args.transient) if args.transient else None
-    if args.lambda_rest is not None and not (np.isfinite(args.lambda_rest) and args.lambda_rest >= 0):
-        raise ValueError(f"--lambda-rest = {args.lambda_rest!r}; allowed range: >= 0 and finite [-]")
-    data_times = [p.t_s for p in profiles] + (list(series.t_s) if series else [])
-    data_times += [float(t) for r in rests or [] for t in r.t_s]
-    names = [s.strip() for s in args.fit.split(",") if s.strip()]
-    if not names:
-        raise ValueError("--fit: name at least one parameter, e.g. --fit mu0,n")
-    if args.method == "lm" and args.gradient == "reverse":  # refused before any scene is built
-        raise ValueError(
-            "--gradient reverse is invalid with --method lm; allowed: forward or auto (the Jacobian of the "
-            "residuals is computed in forward mode, one tangent per parameter), or --method lbfgs / adam"
-        )
-    init = _kv(args.init, "--init")
-    cfg0, overrides = _scene_overrides(args, data_times, init)
-    if args.profile:
-        check_profile_options(args.profile_points, args.profile_width, args.profile_max_iter, "--profile-")
-    if args.refine_max_iter is not None and args.refine_max_iter < 1:
-        raise ValueError(f"--refine-max-iter = {args.refine_max_iter}; allowed range: integer >= 1")
-    levels = _levels(args, float(cfg0["domain.cell_size_m"]))
-    overrides = [o for o in overrides if o.split("=", 1)[0].strip() != "domain.cell_size_m"]
-    cfgs = []
-    for h in levels:
-        try:
-            cfgs.append(mpmjax.load_scene(args.scene, overrides + [f"domain.cell_size_m={h!r}"]))
-        except mpmjax.SceneError as e:
-            raise ValueError(f"--levels / --refine: cell size {h:g} m: {e}") from None
-    cfg = cfgs[0]
-    setup = mpmjax.build(cfg)
-    pset = ParameterSet.from_names(
-        names,
-        setup.params.material,
-        init=init,
+def run_calibrate(args):
+    """``mpmjax calibrate``: the parsed options as a ``calibrate`` call; returns its ``CalibrationResult``."""
+    return calibrate(
+        args.data,
+        fit=[s.strip() for s in args.fit.split(",") if s.strip()],
+        scene=args.scene,
+        init=_kv(args.init, "--init"),
         bounds=_kv(args.bounds, "--bounds", _bounds),
         transforms=_kv(args.transform, "--transform", _transform),
-    )
-    # the observable is the same at every level: bandwidth and runout sigma fixed in metres
-    bandwidth_m = args.bandwidth_m if args.bandwidth_m is not None else levels[0]
-    runout_sigma_m = args.runout_sigma_m if args.runout_sigma_m is not None else 2 * levels[0]
-    flow = _load_flow_curve(args.flow_curve) if args.flow_curve else None
-
-    def weight(kind, from_file=None):
-        return weights.get(kind, from_file if from_file is not None else 1.0)
-
-    def make(st):
-        exps = [
-            ProfileExperiment(
-                st,
-                profiles,
-                bandwidth_m=bandwidth_m,
-                sigma_m=sigmas.get("profiles"),
-                runout_m=args.runout_m,
-                runout_sigma_m=runout_sigma_m,
-                weight=weight("profiles"),
-                name=Path(args.data).name,
-            )
-        ]
-        if series is not None:
-            exps.append(
-                RunoutSeriesExperiment(
-                    st,
-                    series.t_s,
-                    series.x_front_m,
-                    sigma_m=series.sigma_m if series.sigma_m is not None else sigmas.get("runout-series", runout_sigma_m),
-                    sigma_known=series.sigma_m is not None or "runout-series" in sigmas,
-                    bandwidth_m=bandwidth_m,
-                    weight=weight("runout-series", series.weight),
-                    name=Path(args.runout_series).name,
-                )
-            )
-        if rests is not None:
-            lam = {r.lambda_rest for r in rests} - {None}
-            if len(lam) > 1 or (lam and args.lambda_rest is not None):
-                raise ValueError(
-                    f"{args.rest_times}: lambda_rest differs between rest times ({sorted(lam)}) or is given both in the "
-                    "file and by --lambda-rest; allowed: one value"
-                )
-            exps.append(
-                RestTimeExperiment(
-                    st,
-                    [(r.rest_time_s, r.t_s, r.x_front_m, r.sigma_m) for r in rests],
-                    sigma_m=sigmas.get("rest-times", runout_sigma_m),
-                    sigma_known=all(r.sigma_m is not None for r in rests) or "rest-times" in sigmas,
-                    bandwidth_m=bandwidth_m,
-                    lambda_rest=next(iter(lam), args.lambda_rest),
-                    weight=weight("rest-times", rests[0].weight),
-                    name=Path(args.rest_times).name,
-                )
-            )
-        if shear is not None:
-            exps.append(
-                ShearHistoryExperiment(
-                    st.params.material,
-                    shear[0],
-                    sigma_ln=sigmas.get("transient"),
-                    weight=weight("transient", shear[1]),
-                    name=Path(args.transient).name,
-                )
-            )
-        if flow is not None:
-            exps.append(
-                FlowCurveExperiment(
-                    st.params.material,
-                    *flow,
-                    sigma_ln=sigmas.get("flow-curve"),
-                    weight=weight("flow-curve"),
-                    name=Path(args.flow_curve).name,
-                )
-            )
-        return exps
-
-    build_at = experiments_at_cell_size(args.scene, overrides, make)
-
-    def make_experiments(h):
-        return make(setup) if h == levels[0] else build_at(h)
-
-    if writer:
-        out.mkdir(parents=True, exist_ok=True)
-
-    def on_level(i, h, exps):
-        sc = exps[0].setup.scene
-        log(
-            f"calibrate: level {i + 1}/{len(levels)}: scene {cfg['name']} at h = {h:g} m ({sc.n_particles} particles, "
-            f"{sc.n_steps} steps of {sc.dt:.3g} s to t = {sc.t_end:g} s), {len(profiles)} profile(s) from "
-            f"{args.data}, fitting {', '.join(pset.free)} with {args.method}"
-            + (f", {args.starts} start(s)" if i == 0 else ", from the previous level's result")
-        )
-
-    def progress(level, h, it, max_iter, losses, best, running):
-        if not writer:
-            return
-        if not args.quiet:
-            vals = ", ".join(f"{k}={v:.4g}" for k, v in best.items())
-            lv = f" level {level + 1}/{len(levels)}" if len(levels) > 1 else ""
-            print(f"calibrate:{lv} iteration {it}/{max_iter} loss {float(np.min(losses)):.4e} {vals}", file=sys.stderr)
-        mpmjax.atomic_write_text(
-            out / "fit_progress.json",
-            json.dumps(
-                {"level": level, "cell_size_m": h, "iteration": it, "loss": float(np.min(losses)), "params": best,
-                 "complete": False},
-                indent=1,
-            ),
-        )
-
-    t0 = time.perf_counter()
-    ml = fit_multilevel(
-        make_experiments,
-        pset,
-        levels,
-        max_iter=args.max_iter,
-        refine_max_iter=args.refine_max_iter,
-        n_starts=args.starts,
-        progress=progress,
-        on_level=on_level,
+        overrides=args.set,
         method=args.method,
+        max_iter=args.max_iter,
         learning_rate=args.learning_rate,
         rtol=args.rtol,
         patience=args.patience,
+        starts=args.starts,
         seed=args.seed,
         gradient=args.gradient,
+        sigma_m=args.sigma_m,
+        bandwidth_m=args.bandwidth_m,
+        runout_m=args.runout_m,
+        runout_sigma_m=args.runout_sigma_m,
+        flow_curve=args.flow_curve,
+        runout_series=args.runout_series,
+        rest_times=args.rest_times,
+        lambda_rest=args.lambda_rest,
+        transient=args.transient,
+        sigmas=_kv(args.sigma, "--sigma"),
+        weights=_kv(args.weight, "--weight"),
+        refine=args.refine,
+        levels=_levels(args.levels),
+        refine_max_iter=args.refine_max_iter,
+        profile=args.profile,
+        profile_points=args.profile_points,
+        profile_width=args.profile_width,
+        profile_max_iter=args.profile_max_iter,
+        out=args.out,
+        quiet=args.quiet,
+        coordinator=args.coordinator,
+        num_processes=args.num_processes,
+        process_id=args.process_id,
+        distributed=args.distributed,
     )
-    res, unc, exps, comb = ml.result, ml.uncertainty, ml.experiments, ml.combined
-    wall = time.perf_counter() - t0
-    warnings = list(unc.warnings)
-    for k in comb["poorly_identified"]:
-        if k not in unc.poorly_identified:
-            warnings.append(
-                f"{k} is poorly identified: its total relative standard deviation {comb['rel_std'][k]:.3g} exceeds "
-                f"{REL_STD_WARN:g} (numerical {comb['std_numerical'][k]:.3g}, "
-                f"statistical {comb['std_statistical'][k]:.3g})"
-            )
-    if ml.numerical is None:
-        warnings.append(
-            "numerical (discretisation) uncertainty not estimated: one level; the std is statistical only and "
-            "misses the grid's resolution bias (rerun with --refine 1 or --levels)"
-        )
-    profiles_lr = None
-    if args.profile:
-        log(f"calibrate: profile likelihood of {', '.join(pset.free)} ({args.profile_points} points each)")
-        profiles_lr = profile_likelihood(
-            exps, pset, res.params, unc, n_points=args.profile_points, width_sigma=args.profile_width,
-            max_iter=args.profile_max_iter,
-        )
-        warnings += [p.warning for p in profiles_lr.values() if p.warning]
-    for w in warnings:
-        log(f"calibrate: warning: {w}")
-    finest = f"domain.cell_size_m={levels[-1]!r}"
-    doc = {
-        "params": res.params,
-        "std": comb["std"],
-        "std_statistical": comb["std_statistical"],
-        "std_numerical": comb["std_numerical"],
-        "rel_std": comb["rel_std"],
-        "poorly_identified": comb["poorly_identified"],
-        "std_definition": (
-            "std = sqrt(std_statistical^2 + std_numerical^2); std_statistical: Gauss-Newton at the finest level; "
-            "std_numerical: |shift| of the fitted value between the last two levels, or with three levels where "
-            "the observed order allows, |finest - Richardson extrapolate| (numerical_uncertainty.method); null "
-            "with one level"
-        ),
-        "numerical_uncertainty": None if ml.numerical is None else ml.numerical.as_dict(),
-        "levels": [
-            {
-                "cell_size_m": lv.cell_size_m,
-                "n_particles": lv.n_particles,
-                "n_steps": lv.n_steps,
-                "params": lv.result.params,
-                "loss_initial": lv.result.loss_initial,
-                "loss_final": lv.result.loss_final,
-                "iterations": lv.result.iterations,
-                "converged": bool(lv.result.converged),
-                "stop_reason": lv.result.reason,
-                "wall_s": lv.result.wall_s,
-                "cpu_s": lv.result.cpu_s,
-                "evaluations": lv.result.evaluations,
-                "loss_history": [float(v) for v in lv.result.history.min(axis=1)],
-            }
-            for lv in ml.levels
-        ],
-        "loss_initial": ml.levels[0].result.loss_initial,
-        "loss_final": res.loss_final,
-        "iterations": res.iterations,
-        "wall_s": wall,
-        "converged": bool(res.converged),
-        "stop_reason": res.reason,
-        "units": {k: UNITS.get(k, "SI") for k in pset.specs},
-        "initial": {k: pset.specs[k].init for k in pset.free},
-        "fixed": {k: s.init for k, s in pset.specs.items() if s.fixed},
-        "specs": pset.bounds_table(),
-        "uncertainty": {**unc.as_dict(), "warnings": warnings},
-        "identifiability": identifiability(unc),
-        "experiments": [
-            {
-                "name": e.name,
-                "kind": type(e).__name__,
-                "weight": e.weight,
-                "n_residuals": e.n_residuals,
-                "sigma_known": bool(e.sigma_known),
-                "noise_scale": s,
-            }
-            for e, s in zip(exps, unc.noise_scale, strict=True)
-        ],
-        "loss_definition": "sum over experiments of weight * mean(((model - data) / sigma)^2), dimensionless",
-        "loss_history": [float(v) for v in res.history.min(axis=1)],
-        "method": args.method,
-        "gradient": res.gradient,
-        "starts": ml.levels[0].result.starts,
-        "finals": ml.levels[0].result.finals,
-        "final_losses": [float(v) for v in ml.levels[0].result.final_losses],
-        "best_start": ml.levels[0].result.best_start,
-        "compile_s": res.compile_s,
-        "n_processes": jax.process_count(),
-        "n_devices": jax.device_count(),
-        "cpu_s": res.cpu_s,
-        "compile_cpu_s": res.compile_cpu_s,
-        "evaluations": res.evaluations,
-        "scene": cfg["name"],
-        "scene_overrides": overrides
-        + [finest]
-        + [f"{FIELD_KEYS[k]}={v!r}" for k, v in res.params.items() if k in FIELD_KEYS],
-        "bandwidth_m": bandwidth_m,
-        "data": str(args.data),
-        "profile_times_s": [p.t_s for p in profiles],
-        "frame_time_offsets_s": list(exps[0].time_offsets_s),
-        "sigma_known": exps[0].sigma_known,
-        "code_version": mpmjax.__version__,
-    }
-    if profiles_lr is not None:
-        doc["profile_interval_95"] = {k: list(p.interval_95) for k, p in profiles_lr.items()}
-        doc["profile_likelihood"] = {
-            "definition": PROFILE_DEFINITION,
-            **{k: p.as_dict(UNITS.get(k, "SI")) for k, p in profiles_lr.items()},
-        }
-    if not writer:
-        return doc
-    if profiles_lr is not None:
-        plot_profiles(
-            profiles_lr, out / "profile_likelihood.png", {k: UNITS.get(k, "SI") for k in pset.free},
-            {k: pset.specs[k].transform for k in pset.free},
-        )
-    mpmjax.atomic_write_text(out / "fit.json", json.dumps(doc, indent=1))
-    (out / "fit_progress.json").unlink(missing_ok=True)
-    _plots(out, exps[0], pset, ml, profiles, doc)
-    for lv in ml.levels:
-        r = lv.result
-        log(
-            f"calibrate: h = {lv.cell_size_m:g} m: loss {r.loss_initial:.4g} -> {r.loss_final:.4g} in {r.iterations} "
-            f"iterations ({'converged: ' + r.reason if r.converged else 'not converged'}), "
-            + ", ".join(f"{k} = {v:.5g}" for k, v in r.params.items())
-        )
-    log(f"calibrate: {wall:.1f} s; at h = {levels[-1]:g} m:")
-    for line in summary_lines(doc) + identifiability_lines(doc["identifiability"]):
-        log(line)
-    log(
-        f"wrote {out / 'fit.json'}, {out / 'fit_profiles.png'}, {out / 'loss_history.png'}"
-        + (f", {out / 'profile_likelihood.png'}" if profiles_lr is not None else "")
-    )
-    return doc
-
-
-def _fmt(v):
-    return "inf" if v is None else f"{v:.3g}"
-
-
-def summary_lines(doc) -> list:
-    """The fitted values with total, statistical and numerical std, the Richardson
-    extrapolates and the poorly identified names: the printed summary (also the text of
-    fit_profiles.png)."""
-    num = doc.get("numerical_uncertainty")
-    out = []
-    for k, v in doc["params"].items():
-        s = (
-            f"  {k} = {v:.5g} +- {_fmt(doc['std'][k])} [{doc['units'].get(k, 'SI')}] "
-            f"(statistical {_fmt(doc['std_statistical'][k])}"
-        )
-        if num is None:
-            s += ", numerical not estimated)"
-        else:
-            how = {"shift": "shift", "richardson": "Richardson estimate"}[num["method"][k]]
-            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how})"
-        if k in doc["poorly_identified"]:
-            s += "  POORLY IDENTIFIED"
-        out.append(s)
-    for k, p in doc.get("profile_likelihood", {}).items():
-        if k == "definition":
-            continue
-        lo, hi = (_fmt(v) for v in p["profile_interval_95"])
-        glo, ghi = (_fmt(v) for v in p["gauss_newton_interval_95"])
-        out.append(
-            f"  {k}: 95 % profile-likelihood interval {lo} .. {hi}, Gauss-Newton {glo} .. {ghi}"
-            + ("  DISAGREE (factor > 2)" if p["warning"] else "")
-        )
-    if num is not None:
-        for k, r in num["richardson"].items():
-            if r["extrapolated"] is not None:
-                out.append(f"  Richardson: {k} -> {r['extrapolated']:.5g} (h -> 0, observed order {r['order']:.2f})")
-            else:
-                out.append(f"  Richardson: {k} not extrapolated: {r['why_not']}")
-    return out
-
-
-def _plots(out, exp, pset, ml, profiles, doc):
-    # matplotlib only when plots are written (optional heavy import)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    res = ml.result
-    init = {k: pset.specs[k].init for k in pset.free}
-    h_init = [np.asarray(h) for h in exp.model_profiles(pset.values(init))]
-    h_fit = [np.asarray(h) for h in exp.model_profiles(pset.values(res.params))]
-    fig, ax = plt.subplots(figsize=(8, 3.6))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, p in enumerate(profiles):
-        c = colors[i % len(colors)]
-        lab = "final" if p.t_s is None else f"t = {p.t_s:g} s"
-        if p.sigma_m is not None:
-            ax.errorbar(p.x_m, p.h_m, yerr=p.sigma_m, fmt="o", ms=3, color=c, label=f"data {lab}")
-        else:
-            ax.plot(p.x_m, p.h_m, "o", ms=3, color=c, label=f"data {lab}")
-        ax.plot(p.x_m, h_fit[i], "-", color=c, label=f"fitted {lab}")
-        ax.plot(p.x_m, h_init[i], ":", color=c, lw=1, label=f"initial guess {lab}" if i == 0 else None)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("height h [m]")
-    hs = " -> ".join(f"{lv.cell_size_m:g}" for lv in ml.levels)
-    ax.set_title(f"fitted at h = {hs} m: value +- total std (statistical, numerical)", fontsize=9)
-    ax.text(
-        0.99, 0.97, "\n".join(ln.strip() for ln in summary_lines(doc)), transform=ax.transAxes, ha="right", va="top",
-        fontsize=6.5, family="monospace", bbox={"boxstyle": "round", "fc": "white", "alpha": 0.85},
-    )
-    ax.legend(fontsize=7, ncol=2)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(out / "fit_profiles.png", dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(5, 3.4))
-    it0 = 0
-    for lv in ml.levels:
-        hist = lv.result.history
-        ax.semilogy(it0 + np.arange(hist.shape[0]), hist, lw=1, label=f"h = {lv.cell_size_m:g} m")
-        it0 += hist.shape[0] - 1
-    ax.set_xlabel("iteration (all levels)")
-    ax.set_ylabel("loss (dimensionless)")
-    ax.set_title(f"loss {ml.levels[0].result.loss_initial:.3g} -> {res.loss_final:.3g}")
-    if len(ml.levels) > 1:
-        ax.legend(fontsize=7)
-    ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    fig.savefig(out / "loss_history.png", dpi=110)
-    plt.close(fig)
 
 
 def add_sweep_arguments(p: argparse.ArgumentParser):
@@ -806,7 +371,7 @@ def _guard(fn, args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    return _guard(calibrate, args)
+    return _guard(run_calibrate, args)
 
 
 def cmd_sweep(args) -> int:

@@ -19,12 +19,13 @@ import numpy as np
 
 import mpmjax
 
-from .cli import _guard, _kv, _load_flow_curve, _scene_overrides
+from .cli import _guard, _kv
 from .data import DataError, load_profiles
 from .design import ProfileRequest, design, flow_curve_candidate, plot_design, profile_candidates, rheometer_candidate
 from .design import table_lines
 from .experiments import FlowCurveExperiment, ProfileExperiment
 from .params import UNITS, ParameterSet
+from .run import _load_flow_curve, _scene_overrides
 
 REQUIRED = object()
 # kind -> key -> (type, unit, default, meaning); default REQUIRED: must be given; None: see meaning
@@ -238,7 +239,7 @@ def run_design(args) -> dict:
         raise ValueError("no candidate measurement: give --candidates TOML or --profile-times / --shear-rates / ...")
     prior = args.prior_factor if args.prior_factor is not None else settings.get("prior_factor", 10.0)
     times = [p.t_s for p in profiles] + [t for e in entries for t in e.get("times_s") or []]
-    cfg0, overrides = _scene_overrides(args, times, init)
+    cfg0, overrides = _scene_overrides(args.scene, args.set, times, init)
     setup = mpmjax.build(mpmjax.load_scene(args.scene, overrides))
     h = setup.scene.h
     pset = ParameterSet.from_names(names, setup.params.material, init=init)

@@ -106,7 +106,7 @@ def test_calibrate_cli_bad_levels_exit_2_naming_the_option(tmp_path, capsys):
 def test_summary_names_the_method_the_extrapolate_and_the_poorly_identified():
     """The printed summary (also the text box of fit_profiles.png) for three levels: mu0 converges
     at first order (3, 3.5, 3.75 -> 4), lambda0 oscillates (no extrapolation, last shift)."""
-    from calibration.cli import summary_lines
+    from calibration.report import summary_lines
 
     num = numerical_uncertainty([0.04, 0.02, 0.01], {"mu0": [3.0, 3.5, 3.75], "lambda0": [1.0, 1.3, 1.1]})
     assert num.std["mu0"] == pytest.approx(0.25) and num.std["lambda0"] == pytest.approx(0.2)

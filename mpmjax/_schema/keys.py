@@ -1,0 +1,370 @@
+"""The ``Key`` spec of one scene key, ``SceneError``, and the fixed keys (every section but
+``material``, whose keys the rheology laws declare: ``table`` puts them together)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+from .. import _shapes
+from .._scene import FACE_KINDS
+
+
+class SceneError(ValueError):
+    """Invalid scene input; the message names the key, the value and the allowed range."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Key:
+    type: Any  # float, int, str, bool, "vec" (list of floats of length dim), "table-list"
+    default: Any
+    unit: str
+    doc: str
+    lo: float | None = None  # inclusive lower bound
+    lo_open: bool = False  # True: value must be > lo
+    hi: float | None = None
+    choices: tuple | None = None
+    only_3d: bool = False  # meaningful in 3D scenes only: setting it in a 2D scene is an error
+
+
+_REQ = object()  # marker: required
+
+_HEAD: dict[str, Key] = {
+    "name": Key(str, "unnamed", "-", "Scene name, written to the outputs."),
+    "description": Key(str, "", "-", "Free text describing the scene and its source."),
+    "domain.dim": Key(int, 2, "-", "Dimension: 2 (plane strain, per metre of depth) or 3.", choices=(2, 3)),
+    "domain.lo_m": Key("vec", _REQ, "m", "Lower corner of the domain box (walls lie on its faces)."),
+    "domain.hi_m": Key("vec", _REQ, "m", "Upper corner of the domain box."),
+    "domain.cell_size_m": Key(float, _REQ, "m", "Grid cell size h.", lo=0.0, lo_open=True),
+    "boundary.x_lo": Key(str, "slip", "-", "Condition on the x-min face.", choices=FACE_KINDS),
+    "boundary.x_hi": Key(str, "slip", "-", "Condition on the x-max face.", choices=FACE_KINDS),
+    "boundary.y_lo": Key(str, "noslip", "-", "Condition on the y-min face.", choices=FACE_KINDS),
+    "boundary.y_hi": Key(str, "slip", "-", "Condition on the y-max face.", choices=FACE_KINDS),
+    "boundary.z_lo": Key(str, "noslip", "-", "Condition on the z-min face (3D).", choices=FACE_KINDS, only_3d=True),
+    "boundary.z_hi": Key(str, "slip", "-", "Condition on the z-max face (3D).", choices=FACE_KINDS, only_3d=True),
+    "boundary.slip_length_m": Key(
+        float,
+        0.0,
+        "m",
+        "Navier slip length b on the noslip faces of the domain box (not on extra planes or terrain): "
+        "0 is no slip (v = 0 at the wall); b > 0 lets the material slide along the wall at u_wall = b du/dn, "
+        "the gradient taken over the first cell (docs/validation.md, 'Depth resolution', has what it "
+        "measured; experimental: it changes the bed's physics, no-slip is the thesis's condition).",
+        lo=0.0,
+        hi=1e3,
+    ),
+    "boundary.planes": Key(
+        "table-list",
+        [],
+        "-",
+        "Extra planar walls, e.g. an inclined base: a list of tables with point_m (vec, m), "
+        "normal (vec, pointing into the fluid) and type (noslip, slip, symmetry).",
+    ),
+    "numerics.shape": Key(
+        str,
+        "gimp",
+        "-",
+        "Shape function (gimp: the thesis's choice; see docs/validation.md for the measured accuracy of each). "
+        "quadratic_bm / cubic_bm: B-splines modified at the box walls (noslip, slip, symmetry faces) so that they "
+        "interpolate there and have no ghost nodes; extra planes and terrain are not modified.",
+        choices=tuple(_shapes.STENCIL),
+    ),
+    "numerics.transfer": Key(
+        str, "apic", "-", "Particle-grid transfer: APIC or a FLIP/PIC blend.", choices=("apic", "flip")
+    ),
+    "numerics.force": Key(
+        str,
+        "gradient",
+        "-",
+        "How the stress reaches the grid. gradient: as a nodal force f_i = -sum V sigma grad w_ip (any shape "
+        "function). mls: EXPERIMENTAL, MLS-MPM (Hu et al. 2018): the impulse -dt V sigma D^-1 folded into APIC's "
+        "affine momentum and C used as the velocity gradient; 0.64x the step's CPU in docs/performance.md's "
+        "ablation; needs transfer = apic and shape = quadratic or cubic; not validated against the records.",
+        choices=("gradient", "mls"),
+    ),
+    "numerics.flip_blend": Key(
+        float, 0.95, "-", "FLIP fraction of the FLIP/PIC blend (transfer = flip).", lo=0.0, hi=1.0
+    ),
+    "numerics.ppc": Key(
+        int,
+        3,
+        "-",
+        "Particles per cell per axis for seeded bodies. 3 (the default) is the cheapest count at which a yield-stress "
+        "deposit stays packed as its J says; at 2 it packs up to 14 % denser and stops short (the lab dam break: "
+        "1.19 m against 1.28 m at h = 1 cm), at 1 it stops 10-30 % short (docs/validation.md, convergence benchmark; "
+        "benchmarks/accuracy/ppc_probe.md).",
+        lo=1,
+        hi=8,
+    ),
+    "numerics.cfl": Key(
+        float, 0.4, "-", "Safety factor f of the wave-speed limit dt = f h / (c + |v|).", lo=0.0, lo_open=True, hi=1.0
+    ),
+    "numerics.viscous_safety": Key(
+        float,
+        0.5,
+        "-",
+        "Safety factor of the viscous limit dt = f rho h^2/(2 d mu_max) (explicit update only).",
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+    ),
+    "numerics.viscous_update": Key(
+        str,
+        "maxwell",
+        "-",
+        "Deviatoric stress update: exponential Maxwell (stable for any mu) or explicit.",
+        choices=("maxwell", "explicit"),
+    ),
+    "numerics.maxwell_shear_modulus_pa": Key(
+        float,
+        0.0,
+        "Pa",
+        "Maxwell regularisation modulus G; 0 means G = bulk modulus, or with numerics.pressure = incompressible "
+        "G = rho v^2, v the velocity scale of the time step, so that the shear waves are no faster than the flow.",
+        lo=0.0,
+    ),
+    "numerics.velocity_scale_m_s": Key(
+        float,
+        0.0,
+        "m/s",
+        "Speed |v| in the wave-speed limit; 0 means sqrt(2 g H) + max initial speed, "
+        "H the height span of the material.",
+        lo=0.0,
+    ),
+    "numerics.dt_s": Key(
+        float,
+        0.0,
+        "s",
+        "Fixed time step; 0 means from the stability limits. A value above the limit is an error.",
+        lo=0.0,
+    ),
+    "numerics.grid_density_cap": Key(
+        float,
+        0.0,
+        "-",
+        "Grid volume check (off by default): a particle's J is capped at (1 + cap) / phi, phi "
+        "the packing of reference volume measured on the grid (nodal mass / (rho h^d), wall-corrected) at the "
+        "particle. It keeps deposits at the volume their J says: thin pipe-fed deposits, and yield-stress deposits "
+        "at low ppc, whose overpacking makes their runout depend on ppc (Bingham slump at 16 cells, cap 0.05: "
+        "ppc 2 / 3 within 0.2 % of the exact front, against -2.4 / -0.5 % without). It lengthens dambreak-lab "
+        "(1.37 m instead of 1.19 m at h = 0.01 m); see benchmarks/accuracy/ppc_probe.md and docs/scenarios.md, "
+        "overpacking.",
+        lo=0.0,
+        hi=1.0,
+    ),
+    "numerics.volume_averaging": Key(
+        str,
+        "none",
+        "-",
+        "Volumetric anti-locking (off by default): jbar replaces each particle's volume change per step by its "
+        "mass-weighted average through the grid (F-bar / J-bar, Zhao, Jiang & Choo 2023), so a stiff (nearly "
+        "incompressible) material flows instead of locking; it also calms J in a deposit's bottom row, not the "
+        "J noise above it. About 30 % more per step. Experimental: at fine grids it runs too far (water column "
+        "+55 % at h = 2.5 mm, Bingham slump +7 % at 32 cells; docs/validation.md, convergence benchmark).",
+        choices=("none", "jbar"),
+    ),
+    "numerics.pressure": Key(
+        str,
+        "explicit",
+        "-",
+        "Where the pressure comes from. explicit: each particle's J through the Tait EOS with "
+        "material.bulk_modulus_pa (the thesis's weakly compressible MPM: the time step follows its sound speed, "
+        "and a stiff kappa locks). incompressible: one pressure per grid cell solved every step so that the flow "
+        "keeps its volume (fractional step, conjugate gradients; kappa is not used); the time step then follows the "
+        "flow speed and the Maxwell shear waves (docs/validation.md, \"Incompressible limit\").",
+        choices=("explicit", "incompressible"),
+    ),
+    "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
+    "numerics.devices": Key(
+        int,
+        1,
+        "-",
+        "Devices one run is split over (mpmjax run --devices): the particles are divided among them, and the grid is "
+        "shared as numerics.decomposition says. On a CPU these are host devices, one per core. Same results as one "
+        "device to float rounding. Not with a pipe inflow yet. "
+        "Measured speed-up: docs/performance.md, \"One simulation across devices\".",
+        lo=1,
+        hi=1024,
+    ),
+    "numerics.decomposition": Key(
+        str,
+        "replicated",
+        "-",
+        "How a run split over numerics.devices > 1 shares the grid: replicated (every device holds the whole grid; "
+        "the grids are summed every step) or slab (the grid cut into slabs along x, one per device, each holding its "
+        "slab plus a halo of 2-3 node planes exchanged with its neighbours; particles move between devices with "
+        "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls; it "
+        "replaces the whole-grid sum by halo exchange (meant for many GPUs) but does not cut grid memory, and on 2 "
+        "CPU cores it is slower than one device (0.6-0.9x). Measured: docs/performance.md, \"Slabs with halo "
+        "exchange\".",
+        choices=("replicated", "slab"),
+    ),
+    "numerics.slab_capacity": Key(
+        float,
+        1.5,
+        "-",
+        "Particle slots per device with numerics.decomposition = slab, as a multiple of an even share (particles / "
+        "devices): room for particles that crowd into one slab between rebalancings. A particle that finds no slot "
+        "is dropped and counted as lost, which stops mpmjax run with a hint to raise this. Each step costs in "
+        "proportion to the slots (1.25: no particle lost on the built-in dam breaks tried, 7-17 % faster).",
+        lo=1.0,
+        hi=1024.0,
+    ),
+    "time.t_end_s": Key(float, _REQ, "s", "Simulated time.", lo=0.0, lo_open=True),
+    "time.n_frames": Key(int, 30, "-", "Number of saved frames (outer scan length).", lo=1, hi=100000),
+}
+
+_TAIL: dict[str, Key] = {
+    "gravity.g_m_s2": Key(float, 9.81, "m/s^2", "Magnitude of gravity (acts along -last axis before tilting).", lo=0.0),
+    "gravity.slope_deg": Key(
+        float,
+        0.0,
+        "deg",
+        "Tilt of gravity about the vertical-x plane: the base slopes down towards +x by this angle.",
+        lo=-89.0,
+        hi=89.0,
+    ),
+    "gravity.transverse_slope_deg": Key(
+        float, 0.0, "deg", "3D only: tilt towards +y.", lo=-89.0, hi=89.0, only_3d=True
+    ),
+    "bodies": Key(
+        "table-list",
+        [],
+        "-",
+        'Material blocks: tables with type = "box", lo_m, hi_m and optional velocity_m_s. At least one body, an '
+        "inflow or a release is required.",
+    ),
+    "gate.point_m": Key("vec", None, "m", "Aging gate: a point on the plane (optional)."),
+    "gate.normal": Key("vec", None, "-", "Aging gate: normal; material ages once (x - point).normal > 0."),
+    "inflow.point_m": Key("vec", None, "m", "Pipe inflow: centre of the pipe exit (optional; no inflow without it)."),
+    "inflow.direction": Key("vec", None, "-", "Pipe inflow: flow direction at the exit (normalised)."),
+    "inflow.width_m": Key(
+        float, 0.1, "m", "Pipe inflow: cross-section, the width in 2D, the diameter in 3D.", lo=0.0, lo_open=True
+    ),
+    "inflow.flow_rate_m3_s": Key(
+        float,
+        0.001,
+        "m^3/s (2D: m^2/s)",
+        "Pipe inflow: volumetric flow rate Q (2D: per metre of depth).",
+        lo=0.0,
+        lo_open=True,
+    ),
+    "inflow.t_start_s": Key(float, 0.0, "s", "Pipe inflow: start time.", lo=0.0),
+    "inflow.t_stop_s": Key(float, math.nan, "s", "Pipe inflow: stop time; default: time.t_end_s.", lo=0.0),
+    "inflow.aging_gate": Key(
+        bool,
+        True,
+        "-",
+        "Pipe inflow: released material ages only once past the exit plane (an aging gate there; "
+        "it cannot be combined with gate.point_m).",
+    ),
+    "terrain.type": Key(
+        str,
+        "none",
+        "-",
+        "Height-map boundary z = z_b(x[, y]) (bilinear between samples; nodes below it get the condition): "
+        "none, noslip, slip or coulomb (slip with Coulomb friction).",
+        choices=("none", "noslip", "slip", "coulomb"),
+    ),
+    "terrain.heights_m": Key(
+        "table-list",
+        None,
+        "m",
+        "Terrain samples z_b: a list of numbers along x (2D) or a list of rows along x, each a list along y "
+        "(3D). Alternative: terrain.csv.",
+    ),
+    "terrain.csv": Key(
+        str,
+        "",
+        "-",
+        "CSV file of terrain samples z_b [m] (rows along x; in 3D columns along y; # comments), "
+        "relative to the scene file.",
+    ),
+    "terrain.origin_m": Key("vec", None, "m", "Terrain: position of the first sample (x0[, y0]); default domain.lo_m."),
+    "terrain.spacing_m": Key(
+        float, 1.0, "m", "Terrain: sample spacing along each horizontal axis.", lo=0.0, lo_open=True
+    ),
+    "terrain.friction": Key(float, 0.0, "-", "Terrain: Coulomb friction coefficient (type coulomb).", lo=0.0, hi=10.0),
+    "terrain.dem": Key(
+        str,
+        "",
+        "-",
+        "DEM raster of the terrain elevation z_b [m], relative to the scene file (3D only): an ESRI ASCII grid "
+        "(.asc, CRS from a .prj beside it) or a GeoTIFF (.tif, read with rasterio). Pixel values are elevations at "
+        "pixel centres; no-data pixels under the domain are an error. Alternative to terrain.heights_m and "
+        "terrain.csv: it sets the samples, terrain.origin_m and terrain.spacing_m. Scene coordinates = map "
+        "coordinates - terrain.map_origin_m; z is the elevation in both.",
+    ),
+    "terrain.crop_map_m": Key(
+        "vec",
+        None,
+        "m",
+        "DEM crop window [xmin, ymin, xmax, ymax] in map coordinates (must lie inside the raster; the domain must "
+        "lie inside it); default: the whole raster.",
+    ),
+    "terrain.map_origin_m": Key(
+        "vec",
+        None,
+        "m",
+        "Map coordinates (x, y) of the scene origin: scene = map - map_origin. Default with terrain.dem: the "
+        "lower-left corner of the crop window, or of the raster; without a DEM: (0, 0) (map = scene).",
+    ),
+    "terrain.resample": Key(
+        str,
+        "none",
+        "-",
+        "DEM resampling: none (samples at the pixel centres; square pixels needed) or bilinear (the raster "
+        "interpolated bilinearly onto the grid nodes of the domain, spacing domain.cell_size_m).",
+        choices=("none", "bilinear"),
+    ),
+    "terrain.crs": Key(
+        str,
+        "",
+        "-",
+        "CRS of the DEM ('EPSG:32719' or WKT) for a raster that has none (an .asc without .prj); must be "
+        "projected (metres). Default: the raster's own.",
+    ),
+    "release.region_map_m": Key(
+        "region",
+        None,
+        "m",
+        "Breach release: the pond's plan-view region in map coordinates, a box [xmin, ymin, xmax, ymax] or a "
+        "polygon [[x, y], ...] (3D), or [xmin, xmax] (2D). Filled from the terrain (or the domain floor) up to "
+        "release.pond_level_m.",
+    ),
+    "release.pond_level_m": Key(
+        float, None, "m", "Breach release: the pond surface elevation z (needed with release.region_map_m)."
+    ),
+    "output.runout_axis": Key(int, 0, "-", "Axis along which runout is measured.", lo=0, hi=2),
+    "output.runout_origin_m": Key(
+        float, math.nan, "m", "Origin of runout; default: the back (min) of the material along runout_axis at t = 0."
+    ),
+    "output.hazard_maps": Key(
+        bool,
+        False,
+        "-",
+        "Hazard maps (3D: plan-view rasters; 2D: profiles along x): maximum flow depth, maximum speed, maximum "
+        "depth x speed and arrival time over the whole run, and the final deposit thickness (docs/output.md).",
+    ),
+    "output.hazard_format": Key(
+        str,
+        "auto",
+        "-",
+        "Hazard raster format: geotiff (needs a CRS), ascii (ESRI ASCII grid), or auto (GeoTIFF when the scene "
+        "has a CRS, else ESRI ASCII).",
+        choices=("auto", "geotiff", "ascii"),
+    ),
+    "output.hazard_every_steps": Key(
+        int, 1, "-", "Hazard maps: accumulate every k-th time step (1: every step).", lo=1, hi=1000000
+    ),
+    "output.hazard_depth_m": Key(
+        float,
+        0.1,
+        "m",
+        "Hazard maps: flow depth above which a bin is wet: the arrival time is the first time the depth exceeds "
+        "it, and speeds count only where it is exceeded.",
+        lo=0.0,
+        lo_open=True,
+    ),
+}

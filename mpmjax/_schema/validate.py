@@ -1,0 +1,545 @@
+"""Validation: ``_check`` of one key's value against its ``Key``, and ``validate`` of a whole
+scene (the cross-field checks: domain, bodies, planes, gate, inflow, terrain, release, material)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import _dem, _release, _rheology
+from .._boundary import inflow_layout
+from .._scene import WALL_KINDS
+from .keys import _REQ, Key, SceneError
+from .table import SCHEMA, SECTIONS
+
+
+def _flatten(d: dict, prefix="") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and key in SECTIONS:
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _plain(val: Any) -> Any:
+    """Numpy scalars and arrays (also inside lists, tuples and dicts) as plain Python numbers
+    and lists, so that messages print ``5.0``, not ``np.float64(5.0)``."""
+    if isinstance(val, np.ndarray):
+        return val.tolist()
+    if isinstance(val, np.generic):
+        return val.item()
+    if isinstance(val, (list, tuple)):
+        return [_plain(a) for a in val]
+    if isinstance(val, dict):
+        return {k: _plain(a) for k, a in val.items()}
+    return val
+
+
+def _show(val: Any, limit: int = 120) -> str:
+    """``repr`` for error messages (numpy values as plain numbers, ``_plain``): never raises
+    (huge ints) and is cut to ``limit`` characters."""
+    try:
+        text = repr(_plain(val))
+    except Exception:  # e.g. ValueError: int too large for str()  # noqa: BLE001
+        text = f"<{type(val).__name__}>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _to_float(a) -> float:
+    """float(a), with integers too large for a float mapped to +-inf (rejected as non-finite)."""
+    try:
+        return float(a)
+    except OverflowError:
+        return math.inf if a > 0 else -math.inf
+
+
+def _check(key: str, val: Any, spec: Key, dim: int):
+    def bad(why):
+        raise SceneError(f"{key} = {_show(val)} is invalid: {why} ({spec.doc} Unit: {spec.unit})")
+
+    if spec.type == "vec":
+        # horizontal axes only: terrain origins; a crop window: [xmin, ymin, xmax, ymax]
+        n = {"terrain.origin_m": dim - 1, "terrain.map_origin_m": dim - 1, "terrain.crop_map_m": 4}.get(key, dim)
+        if not isinstance(val, (list, tuple)) or not all(
+            isinstance(a, (int, float)) and not isinstance(a, bool) for a in val
+        ):
+            bad(f"expected a list of {n} numbers")
+        if len(val) != n:
+            bad(f"expected {n} components for a {dim}D scene (domain.dim = {dim})")
+        vals = [_to_float(a) for a in val]
+        if not all(math.isfinite(a) for a in vals):
+            bad("components must be finite")
+        return vals
+    if key == "terrain.heights_m":
+        arr = _terrain_array(val, dim, lambda why: bad(why))
+        return arr.tolist()
+    if spec.type == "region":
+        why = _release.region_error(_plain(val), dim)
+        if why:
+            bad(why)
+        return _plain(val)
+    if spec.type == "table-list":
+        if not isinstance(val, list) or not all(isinstance(a, dict) for a in val):
+            bad("expected a list of tables ([[...]] in TOML)")
+        return val
+    if spec.type is float:
+        if isinstance(val, bool) or not isinstance(val, (int, float)):
+            bad("expected a number")
+        val = _to_float(val)
+        if not math.isfinite(val):
+            # NaN is the internal "derived" default of the _NAN_DEFAULT keys, never a user's value
+            bad("must be finite" + (" (leave the key out for the default)" if key in _NAN_DEFAULT else ""))
+    elif spec.type is int:
+        if isinstance(val, bool) or not isinstance(val, int):
+            bad("expected an integer")
+    elif spec.type is bool:
+        if not isinstance(val, bool):
+            bad("expected true or false")
+    elif spec.type is str:
+        if not isinstance(val, str):
+            bad("expected a string")
+        if "\x00" in val:
+            bad("must not contain NUL characters")
+    if spec.choices is not None and val not in spec.choices:
+        bad(f"allowed values: {', '.join(map(str, spec.choices))}")
+    if spec.lo is not None:
+        if val < spec.lo or (spec.lo_open and val == spec.lo):
+            rng = f"> {spec.lo}" if spec.lo_open else f">= {spec.lo}"
+            if spec.hi is not None:
+                rng += f" and <= {spec.hi}"
+            bad(f"allowed range: {rng}")
+    if spec.hi is not None and val > spec.hi:
+        bad(f"allowed range: <= {spec.hi}")
+    return val
+
+
+# keys whose default is NaN, meaning "derived from the scene" (the key's doc says how); a NaN
+# given by the user is refused like any non-finite value
+_NAN_DEFAULT = ("output.runout_origin_m", "inflow.t_stop_s")
+_MAX_PARTICLES = 2**31 - 1
+_F32 = np.finfo(np.float32)
+
+
+# float keys that become float32 arrays (material parameters, gravity, positions, velocities)
+def _f32_keys() -> tuple[str, ...]:
+    return tuple(k for k, s in SCHEMA.items() if s.type is float and k.split(".")[0] in ("material", "gravity")) + (
+        "numerics.maxwell_shear_modulus_pa",
+        "domain.cell_size_m",
+        "domain.lo_m",
+        "domain.hi_m",
+        "gate.point_m",
+        "inflow.point_m",
+    )
+
+
+def _check_float32_range(out: dict):
+    """With numerics.dtype = float32, every parameter must survive the conversion: no
+    overflow to inf, and no underflow to 0 of a value that must be positive."""
+
+    def check(key, val, positive):
+        a = abs(val)
+        if a > float(_F32.max) or (positive and a < float(_F32.tiny)):
+            raise SceneError(
+                f"{key} = {_show(val)} is invalid with numerics.dtype = float32: allowed magnitude "
+                f'{_F32.tiny:.3g} .. {_F32.max:.3g} (use numerics.dtype = "float64" for more range)'
+            )
+
+    for key in _f32_keys():
+        val = out.get(key)
+        if val is None:
+            continue
+        spec = SCHEMA[key]
+        for v in val if isinstance(val, list) else [val]:
+            if not math.isnan(v):
+                check(key, v, spec.lo_open and spec.lo == 0.0)
+    for i, b in enumerate(out["bodies"]):
+        if isinstance(b, dict):
+            for sub in ("lo_m", "hi_m", "velocity_m_s"):
+                v = b.get(sub)
+                if isinstance(v, list):
+                    for a in v:
+                        if isinstance(a, (int, float)) and not isinstance(a, bool):
+                            check(f"bodies[{i}].{sub}", _to_float(a), False)
+
+
+def _usable_normal(nrm) -> bool:
+    with np.errstate(all="ignore"):
+        length = float(np.linalg.norm(np.asarray(nrm, float)))
+    return math.isfinite(length) and length >= np.finfo(float).tiny
+
+
+def _body_particle_count(blo, bhi, dx) -> float:
+    with np.errstate(all="ignore"):
+        counts = np.maximum(np.round((bhi - blo) / dx), 1.0)
+        return float(np.prod(counts))
+
+
+def _terrain_array(val, dim: int, bad) -> np.ndarray:
+    """Terrain samples as a float array of dim - 1 axes (each >= 2 samples), all finite."""
+    try:
+        arr = np.asarray(val, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        bad(f"expected {'a list of numbers' if dim == 2 else 'a list of equal-length lists of numbers'}")
+    if arr.ndim != dim - 1 or min(arr.shape) < 2:
+        bad(f"expected {dim - 1} axis/axes of at least 2 samples (domain.dim = {dim}), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad("samples must be finite")
+    return arr
+
+
+_DEM_ONLY = ("terrain.crop_map_m", "terrain.resample", "terrain.crs")
+
+
+def _validate_terrain(out: dict, dim: int, lo, flat: dict):
+    kind = out["terrain.type"]
+    if kind == "none":
+        given = [k for k in ("terrain.dem", *_DEM_ONLY) if k in flat]
+        if given:
+            raise SceneError(
+                f"{given[0]} = {_show(flat[given[0]])} is invalid with terrain.type = 'none'; allowed: "
+                "set terrain.type (noslip, slip or coulomb) to use a DEM"
+            )
+        return
+    sources = [k for k in ("terrain.heights_m", "terrain.csv", "terrain.dem") if out[k]]
+    if not sources:
+        raise SceneError(f"terrain.type = {kind!r} needs terrain.heights_m or terrain.csv (or terrain.dem)")
+    if len(sources) > 1:
+        raise SceneError(f"{' and '.join(sources)} are alternatives; give one")
+    if out["terrain.dem"]:
+        _validate_dem(out, dim, flat)
+        return
+    given = [k for k in _DEM_ONLY if k in flat]
+    if given:
+        raise SceneError(f"{given[0]} = {_show(flat[given[0]])} is invalid without terrain.dem: it describes a DEM")
+    if out["terrain.csv"]:
+        path = Path(out["terrain.csv"])
+        try:
+            data = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+        except (OSError, ValueError) as e:
+            raise SceneError(f"terrain.csv = {str(path)!r} cannot be read as a CSV of numbers: {e}") from None
+        if dim == 2:
+            data = data.ravel()
+
+        def bad(why):
+            raise SceneError(f"terrain.csv = {str(path)!r} is invalid: {why}")
+
+        out["terrain.heights_m"] = _terrain_array(data, dim, bad).tolist()
+        out["terrain.csv"] = str(path)
+    if out["terrain.origin_m"] is None:
+        out["terrain.origin_m"] = [float(a) for a in lo[: dim - 1]]
+
+
+def _validate_dem(out: dict, dim: int, flat: dict):
+    """Read ``terrain.dem`` (``_dem.terrain_samples``) and fill the terrain and map keys from it."""
+    if dim != 3:
+        raise SceneError(
+            f"terrain.dem = {out['terrain.dem']!r} is invalid in a 2D scene (domain.dim = 2): a DEM is a plan-view "
+            "grid; allowed: a 3D scene, or a 2D profile in terrain.csv or terrain.heights_m"
+        )
+    derived = [k for k in ("terrain.origin_m", "terrain.spacing_m") if k in flat]
+    if derived:
+        raise SceneError(
+            f"{derived[0]} = {_show(flat[derived[0]])} is invalid with terrain.dem: the DEM sets it (the map origin "
+            "is terrain.map_origin_m)"
+        )
+    try:
+        got = _dem.terrain_samples(out, Path(out["terrain.dem"]))
+    except _dem._Error as e:
+        raise SceneError(f"terrain.dem: {e}") from None
+    out.update({k: v for k, v in got.items() if k.startswith("terrain.")})
+
+
+def _validate_release(out: dict, dim: int, lo, hi, flat: dict):
+    region, pond = out["release.region_map_m"], out["release.pond_level_m"]
+    if region is None:
+        if pond is not None:
+            raise SceneError(
+                f"release.pond_level_m = {pond} is invalid without release.region_map_m (the pond's region)"
+            )
+        return
+    if pond is None:
+        raise SceneError("release.region_map_m needs release.pond_level_m, the pond surface elevation z [m]")
+    poly = _release.region_polygon(region, out["terrain.map_origin_m"], dim)
+    pts = poly.reshape(-1, dim - 1)
+    tol = 1e-9 * out["domain.cell_size_m"]
+    if np.any(pts < lo[: dim - 1] - tol) or np.any(pts > hi[: dim - 1] + tol):
+        origin = out["terrain.map_origin_m"] or [0.0] * (dim - 1)
+        raise SceneError(
+            f"release.region_map_m = {_show(region)} is not inside the domain's plan: in scene coordinates "
+            f"(map - terrain.map_origin_m = {_show(origin)}) it spans [{_plain(pts.min(axis=0))}, "
+            f"{_plain(pts.max(axis=0))}] m; the domain spans [{_plain(lo[: dim - 1])}, {_plain(hi[: dim - 1])}] m"
+        )
+    if not lo[-1] < pond <= hi[-1]:
+        raise SceneError(
+            f"release.pond_level_m = {pond} is invalid: allowed range: > domain.lo_m z = {lo[-1]} and <= domain.hi_m "
+            f"z = {hi[-1]} (m; the pond must lie inside the domain)"
+        )
+
+
+def _validate_inflow(out: dict, dim: int, lo, hi, h):
+    pt, dr = out["inflow.point_m"], out["inflow.direction"]
+    if (pt is None) != (dr is None):
+        raise SceneError("inflow.point_m and inflow.direction must be given together")
+    if pt is None:
+        return
+    if not _usable_normal(dr):
+        raise SceneError(
+            f"inflow.direction = {dr} is invalid: allowed: a non-zero vector whose length is a finite, normal float"
+        )
+    p = np.asarray(pt)
+    if np.any(p < lo) or np.any(p > hi):
+        raise SceneError(f"inflow.point_m = {pt} lies outside the domain [{_plain(lo)}, {_plain(hi)}] (m)")
+    t0, t1 = out["inflow.t_start_s"], out["inflow.t_stop_s"]
+    t1 = out["time.t_end_s"] if math.isnan(t1) else t1
+    if t1 <= t0:
+        raise SceneError(f"inflow.t_stop_s = {t1} is invalid: allowed range: > inflow.t_start_s = {t0} (s)")
+    if out["inflow.aging_gate"] and out["gate.point_m"] is not None:
+        raise SceneError(
+            "gate.point_m is invalid with inflow.aging_gate = true (the inflow puts the aging gate at the pipe "
+            "exit); allowed: set inflow.aging_gate = false to use gate.point_m"
+        )
+    if 2 * out["inflow.width_m"] < h / out["numerics.ppc"]:
+        raise SceneError(
+            f"inflow.width_m = {out['inflow.width_m']} is invalid: allowed range: >= half the particle spacing "
+            f"domain.cell_size_m / numerics.ppc = {h / out['numerics.ppc']} m"
+        )
+    if out["numerics.devices"] > 1:
+        raise SceneError(
+            f"numerics.devices = {out['numerics.devices']} is invalid with a pipe inflow (its release schedule numbers "
+            "the pool particles globally, which one device's share does not see); allowed: 1"
+        )
+    n = inflow_layout(out, dim)[2]
+    if n > _MAX_PARTICLES:
+        raise SceneError(
+            f"inflow: {n:.4g} pool particles (flow_rate_m3_s = {out['inflow.flow_rate_m3_s']}, "
+            f"{t1 - t0} s); the limit is {_MAX_PARTICLES}"
+        )
+
+
+def _law_keys(law) -> set[str]:
+    """The material keys a law reads: its parameters and options, the model and the shear
+    measure (every law's viscosity is fed the shear rate it selects: ``Scene.shear_measure``)."""
+    return {d.key for d in law.params + law.options} | {"material.model", "material.shear_measure"}
+
+
+def _validate_material(flat: dict, out: dict) -> None:
+    """The material keys given must belong to the chosen law, and its ordered parameter pairs
+    (``Law.ordered_params``, e.g. Coussot's mu0 <= mu_max) must be in order."""
+    model = out["material.model"]
+    law = _rheology.MODELS[model]
+    used = _law_keys(law)
+    unused = [k for k in flat if k.startswith("material.") and k not in used]
+    if unused:
+        k = unused[0]
+        users = [name for name, cls in _rheology.MODELS.items() if k in _law_keys(cls)]
+        raise SceneError(
+            f"{k} = {_show(flat[k])} is invalid with material.model = {model!r}: that law does not use it"
+            + (f" ({len(unused) - 1} more such key(s): {', '.join(unused[1:])})" if len(unused) > 1 else "")
+            + f"; allowed material keys for {model}: {', '.join(sorted(used))}"
+            + (f" (the key belongs to material.model = {', '.join(users)})" if users else "")
+        )
+    key_of = {p.name: p for p in law.params}
+    for lo_name, hi_name in law.ordered_params:
+        lo_p, hi_p = key_of[lo_name], key_of[hi_name]
+        a, b = out[lo_p.key], out[hi_p.key]
+        if b < a:
+            raise SceneError(
+                f"{hi_p.key} = {_show(b)} is invalid with {lo_p.key} = {_show(a)}: allowed range: >= {lo_p.key} "
+                f"= {_show(a)} ({hi_p.unit}); material.model = {model!r} needs {lo_name} <= {hi_name}"
+            )
+
+
+def _check_pressure(out: dict):
+    """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
+    and the slab decomposition (whose halos the grid solve does not exchange) are refused."""
+    if out["numerics.pressure"] == "explicit":
+        return
+    for key, off in (("numerics.volume_averaging", "none"), ("numerics.grid_density_cap", 0.0)):
+        if out[key] != off:
+            raise SceneError(
+                f"{key} = {_show(out[key])} is invalid with numerics.pressure = 'incompressible' (the grid pressure "
+                f"keeps the volume itself); allowed: {off!r}"
+            )
+    if out["numerics.devices"] > 1 and out["numerics.decomposition"] == "slab":
+        raise SceneError(
+            "numerics.decomposition = 'slab' is invalid with numerics.pressure = 'incompressible' (the pressure is "
+            "solved on the whole grid); allowed: 'replicated'"
+        )
+
+
+def _validate_domain(out: dict):
+    """The domain box: corners in order, a finite size, a cell count under the limit and a whole
+    number of cells on every axis.  Returns the corners (arrays) and the cell size."""
+    lo, hi = np.asarray(out["domain.lo_m"]), np.asarray(out["domain.hi_m"])
+    if np.any(hi <= lo):
+        raise SceneError(
+            f"domain.hi_m = {out['domain.hi_m']} must exceed domain.lo_m = {out['domain.lo_m']} on every axis"
+        )
+    h = out["domain.cell_size_m"]
+    with np.errstate(all="ignore"):
+        size = hi - lo
+        ncell = size / h
+        n_total = float(np.prod(np.round(ncell) + 7))
+    if not np.all(np.isfinite(size)):
+        raise SceneError(
+            f"domain.lo_m = {out['domain.lo_m']}, domain.hi_m = {out['domain.hi_m']}: the domain size "
+            "overflows a float; allowed: a finite size on every axis"
+        )
+    if not math.isfinite(n_total) or n_total > 5e7:
+        n_cells = float(np.prod(np.round(ncell))) if math.isfinite(n_total) else math.inf
+        raise SceneError(
+            f"domain.cell_size_m = {h} gives {n_cells:.4g} cells for the domain size {_plain(size)} m; "
+            "the limit is 5e7 (including the ghost layers)"
+        )
+    if np.any(ncell < 1) or np.any(np.abs(ncell - np.round(ncell)) > 1e-6 * np.maximum(ncell, 1)):
+        raise SceneError(
+            f"domain.cell_size_m = {h} must divide the domain size {_plain(size)} into a whole number (>= 1) of cells"
+        )
+    return lo, hi, h
+
+
+def _validate_bodies(out: dict, dim: int, lo, hi, h):
+    """The material bodies: at least one source of material, each a box inside the domain, and a
+    particle count that int32 indices can number."""
+    if not out["bodies"] and out["inflow.point_m"] is None and out["release.region_map_m"] is None:
+        raise SceneError(
+            "bodies = [] is invalid: at least one material body (or an inflow, or a release.region_map_m) is required"
+        )
+    n_particles = 0
+    for i, b in enumerate(out["bodies"]):
+        extra = set(b) - {"type", "lo_m", "hi_m", "velocity_m_s"}
+        if extra:
+            raise SceneError(
+                f"bodies[{i}]: unknown key(s) {sorted(map(str, extra))}; allowed: type, lo_m, hi_m, velocity_m_s"
+            )
+        if not isinstance(b.get("type", "box"), str) or b.get("type", "box") != "box":
+            raise SceneError(f"bodies[{i}].type = {_show(b.get('type'))} is invalid: allowed values: box")
+        vspec = Key("vec", None, "m", "body corner")
+        blo = np.asarray(_check(f"bodies[{i}].lo_m", b.get("lo_m"), vspec, dim))
+        bhi = np.asarray(_check(f"bodies[{i}].hi_m", b.get("hi_m"), vspec, dim))
+        _check(
+            f"bodies[{i}].velocity_m_s", b.get("velocity_m_s", [0.0] * dim), Key("vec", None, "m/s", "velocity"), dim
+        )
+        if np.any(bhi <= blo):
+            raise SceneError(f"bodies[{i}]: hi_m = {_plain(bhi)} must exceed lo_m = {_plain(blo)} on every axis")
+        if np.any(blo < lo - 1e-9) or np.any(bhi > hi + 1e-9):
+            raise SceneError(
+                f"bodies[{i}] = [{_plain(blo)}, {_plain(bhi)}] lies outside the domain "
+                f"[domain.lo_m, domain.hi_m] = [{_plain(lo)}, {_plain(hi)}] (m)"
+            )
+        n_particles += _body_particle_count(blo, bhi, h / out["numerics.ppc"])
+    if n_particles > _MAX_PARTICLES:
+        raise SceneError(
+            f"bodies: {n_particles:.4g} particles at numerics.ppc = {out['numerics.ppc']} per cell and "
+            f"domain.cell_size_m = {h}; the limit is {_MAX_PARTICLES} (int32 particle indices)"
+        )
+
+
+def _validate_planes_and_gate(out: dict, dim: int):
+    """The extra wall planes (point, usable normal, wall type) and the gate (point and normal together)."""
+    for i, p in enumerate(out["boundary.planes"]):
+        extra = set(p) - {"point_m", "normal", "type"}
+        if extra:
+            raise SceneError(
+                f"boundary.planes[{i}]: unknown key(s) {sorted(map(str, extra))}; allowed: point_m, normal, type"
+            )
+        _check(f"boundary.planes[{i}].point_m", p.get("point_m"), Key("vec", None, "m", "plane point"), dim)
+        nrm = _check(f"boundary.planes[{i}].normal", p.get("normal"), Key("vec", None, "-", "plane normal"), dim)
+        if not _usable_normal(nrm):
+            raise SceneError(
+                f"boundary.planes[{i}].normal = {nrm} is invalid: allowed: a non-zero vector whose "
+                "length is a finite, normal float"
+            )
+        _check(
+            f"boundary.planes[{i}].type",
+            p.get("type", "noslip"),
+            Key(str, None, "-", "wall type", choices=WALL_KINDS),
+            dim,
+        )
+    if (out["gate.point_m"] is None) != (out["gate.normal"] is None):
+        raise SceneError("gate.point_m and gate.normal must be given together")
+    if out["gate.normal"] is not None and not _usable_normal(out["gate.normal"]):
+        raise SceneError(
+            f"gate.normal = {out['gate.normal']} is invalid: allowed: a non-zero vector whose "
+            "length is a finite, normal float"
+        )
+
+
+def _validate_axes(out: dict, dim: int):
+    """The runout axis exists and periodic faces come in pairs."""
+    if out["output.runout_axis"] >= dim:
+        raise SceneError(
+            f"output.runout_axis = {out['output.runout_axis']} is invalid: allowed range 0..{dim - 1} "
+            f"(domain.dim = {dim})"
+        )
+    for ax in range(dim):
+        lo_k, hi_k = out[f"boundary.{'xyz'[ax]}_lo"], out[f"boundary.{'xyz'[ax]}_hi"]
+        if (lo_k == "periodic") != (hi_k == "periodic"):
+            raise SceneError(
+                f"boundary.{'xyz'[ax]}_lo = {lo_k!r}, boundary.{'xyz'[ax]}_hi = {hi_k!r}: "
+                "periodic must be set on both faces of an axis"
+            )
+
+
+def validate(raw: dict) -> dict:
+    """Check a nested scene dict against ``SCHEMA``; returns a flat dict with defaults."""
+    if not isinstance(raw, dict):
+        raise SceneError(f"a scene must be a table of keys (a TOML document), got {_show(raw)}")
+    for sec in sorted(SECTIONS):
+        if sec in raw and not isinstance(raw[sec], dict):
+            raise SceneError(
+                f"{sec} = {_show(raw[sec])} is invalid: expected a table ([{sec}] in TOML) "
+                f"with keys {', '.join(k for k in SCHEMA if k.startswith(sec + '.'))}"
+            )
+    flat = _flatten(raw)
+    unknown = sorted(str(k) for k in flat if k not in SCHEMA)
+    if unknown:
+        raise SceneError(
+            f"unknown key(s): {', '.join(unknown)}. Known keys: see `mpmjax scenes --keys` or docs/scenes.md"
+        )
+    dim = flat.get("domain.dim", 2)
+    dim = _check("domain.dim", dim, SCHEMA["domain.dim"], 2)
+    out = {}
+    for key, spec in SCHEMA.items():
+        if key in flat:
+            out[key] = _check(key, flat[key], spec, dim)
+        elif spec.default is _REQ:
+            raise SceneError(f"missing required key {key} ({spec.doc} Unit: {spec.unit})")
+        else:
+            out[key] = copy.deepcopy(spec.default)
+    if out["numerics.dtype"] == "float32":
+        _check_float32_range(out)
+    _check_pressure(out)
+    lo, hi, h = _validate_domain(out)
+    if dim == 2:
+        only3 = [k for k in flat if SCHEMA[k].only_3d]
+        if only3:
+            raise SceneError(
+                f"{', '.join(f'{k} = {_show(flat[k])}' for k in only3)} is invalid in a 2D scene (domain.dim = 2): "
+                "allowed only in 3D scenes (domain.dim = 3); remove it"
+            )
+    _validate_material(flat, out)
+    _validate_bodies(out, dim, lo, hi, h)
+    _validate_planes_and_gate(out, dim)
+    _validate_inflow(out, dim, lo, hi, h)
+    _validate_terrain(out, dim, lo, flat)
+    if out["output.hazard_maps"] and out["output.hazard_format"] == "geotiff" and not out["terrain.crs"]:
+        raise SceneError(
+            "output.hazard_format = 'geotiff' needs a CRS, and the scene has none"
+            + (
+                f" (the DEM {out['terrain.dem']} has no CRS in the file and no .prj beside it)"
+                if out["terrain.dem"]
+                else " (no terrain.dem)"
+            )
+            + "; allowed: set terrain.crs (e.g. 'EPSG:32719') with a DEM, or output.hazard_format = 'ascii' (or 'auto')"
+        )
+    _validate_release(out, dim, lo, hi, flat)
+    _validate_axes(out, dim)
+    return out
