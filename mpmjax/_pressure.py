@@ -6,8 +6,8 @@ pair: bilinear/trilinear velocity, cell-constant pressure):
 
 1. predictor: v* = v + dt (f_tau/m + g) on the nodes, with the walls' conditions (``_step``);
 2. pressure: find p on the fluid cells such that v = v* + dt m^-1 S B^T p satisfies
-   B v = beta V_c e_c / dt, i.e.  A p = (beta V_c e_c / dt - B v*) / dt, A = B m^-1 S B^T,
-   beta = ``VOLUME_RELAXATION``, e_c the cell's volume error (below);
+   B v = r V_c (phi_c - 1)^+ / dt, i.e.  (A + eps D) p = (r V_c (phi_c - 1)^+ / dt - B v*) / dt,
+   A = B m^-1 S B^T, D its diagonal, eps = ``REGULARISATION``, r the correction rate (below);
 3. corrector: v = v* + dt m^-1 S B^T p, then the walls' conditions again, then G2P (``_step``).
 
 Here B v is the cell's volume rate, the integral over the cell of div v with the bilinear
@@ -27,14 +27,17 @@ Fluid cells: phi_c, the cell's packing (the nodal masses of its corners over rho
 divided by the packing a filled domain gives it, ``_boundary.node_fill``), at least
 ``FLUID_FRACTION``; every other cell, and every cell whose centre lies outside the domain box,
 behind a plane or below the terrain, has p = 0 (the free surface, and the walls' ghost cells,
-which couple to nothing the walls leave free).  e_c is the volume correction: phi_c - 1 in a
-cell whose face neighbours are all fluid or wall, (phi_c - 1)^+ in a cell at the free surface
-(partly empty by nature).  So a cell packed denser than its material is pushed back apart and a
-void inside the flow is closed: deposits stay at their volume whatever ppc does.  Without the
-closing of voids (only (phi_c - 1)^+) the lab deposit's interior cells held phi = 0.88 on average,
-its bottom row 0.82 (docs/validation.md, "Incompressible limit"): a divergence-free velocity keeps
-a void as it is, and the particles' motion (interpolated from the nodes) is not exactly that
-velocity's.
+which couple to nothing the walls leave free).  (phi_c - 1)^+ is the volume correction: a cell packed
+denser than its material is pushed back apart, at the rate r = dt / sqrt(h/|g|) (the free-fall time
+across a cell; ``VOLUME_RELAXATION`` scales it), not in one step: the packing fluctuates by a few
+per cent as particles cross cells, and a one-step correction turns that into velocity noise (h/dt
+times the fluctuation) that fluidises a thixotropic deposit.  Under-filled cells are not pulled
+together: closing them (phi_c - 1 in cells surrounded by fluid) kept the lab deposit's interior at
+phi = 1.000 but kept yield-stress slumps creeping past x_inf (+21 % and +41 %), so it is not done;
+the price is a dilated interior (phi about 0.88 in the lab deposit; docs/validation.md,
+"Incompressible limit", has the figures of each variant).  eps D pins the pressure's level in a
+region with no free surface (a full closed box), where A alone is singular; there the system's mean
+is removed too, since a closed box's volume can be kept but not corrected.
 
 The solve: conjugate gradients (``jax.scipy.sparse.linalg.cg``, a ``lax.custom_linear_solve``:
 differentiable by implicit differentiation, forward and reverse mode, and vmappable), Jacobi
@@ -64,6 +67,9 @@ CG_RTOL = {"float32": 1e-5, "float64": 1e-11}
 CG_MAXITER = 2000
 # the volume error is corrected at this many times the rate 1/sqrt(h/|g|) (see project)
 VOLUME_RELAXATION = 1.0
+# A's diagonal is raised by this fraction: a region with no free surface (a full closed box) has pressure
+# fixed only up to a constant, and the volume error can make its system inconsistent
+REGULARISATION = 1e-4
 
 
 def _shifter(periodic):
@@ -190,23 +196,24 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
 
         def A(q):
             q = jnp.where(fluid, q, 0.0)
-            return jnp.where(fluid, div(S(grad(q))), 0.0)
+            return jnp.where(fluid, div(S(grad(q))) + shift * q, 0.0)
 
         vs = [v_star[:, a].reshape(shape) for a in range(dim)]
-        # the volume error: overpacking everywhere; underpacking (voids) only in cells whose face
-        # neighbours are all fluid or wall (not at the free surface, where a cell is partly empty)
-        closed = fluid
-        for a in range(dim):
-            for sh in (-1, 1):
-                nb = _roll(fluid, sh, a) | ~jnp.asarray(np.roll(valid, sh, axis=a))
-                closed = closed & nb
-        # corrected over the free-fall time across a cell, sqrt(h/|g|), not in one step: the packing
-        # fluctuates by a few per cent as particles cross cells, and a one-step correction turns
-        # that into velocity noise (h/dt x the fluctuation)
+        # the volume error: overpacking, corrected over the free-fall time across a cell, sqrt(h/|g|), not in
+        # one step (the packing fluctuates by a few per cent as particles cross cells; a one-step correction
+        # turns that into velocity noise, h/dt times the fluctuation)
         g_mag = jnp.sqrt(jnp.sum(params.gravity * params.gravity))
         rate = jnp.minimum(1.0, VOLUME_RELAXATION * scene.dt * jnp.sqrt(g_mag / h))
-        excess = rate * jnp.where(closed, phi - 1.0, jnp.maximum(phi - 1.0, 0.0))
+        excess = rate * jnp.maximum(phi - 1.0, 0.0)
         b = jnp.where(fluid, (vol_c * excess / scene.dt - div(vs)) / scene.dt, 0.0)
+        # no free surface anywhere (a full closed box): the volume can only be kept, not corrected, so the
+        # system's mean is removed (with eps D, the pressure's level is then about zero on average)
+        surface = jnp.zeros_like(fluid)
+        for a in range(dim):
+            for sh in (-1, 1):
+                surface = surface | (fluid & ~_roll(fluid, sh, a) & jnp.asarray(np.roll(valid, sh, axis=a)))
+        n_fluid = jnp.maximum(jnp.sum(fluid), 1)
+        b = jnp.where(jnp.any(surface), b, jnp.where(fluid, b - jnp.sum(b) / n_fluid, 0.0))
         # Jacobi: diag(A)_c = sum over corners i of coef^2 s^T W_i s
         diag = 0.0
         for sgn in signs:
@@ -220,6 +227,8 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
                 if sgn[a]:
                     t = _roll(t, -1, a)
             diag = diag + t
+        shift = REGULARISATION * diag
+        diag = diag + shift
         inv_diag = jnp.where(fluid & (diag > 0.0), 1.0 / jnp.where(diag > 0.0, diag, 1.0), 0.0)
         # start: the last step's pressure, else hydrostatic (the fluid above along the last axis)
         col = jnp.where(fluid, phi, 0.0)

@@ -40,8 +40,11 @@ def _layer(pressure="incompressible", dim=2, kappa=1e5, dtype="float64", mu=1.0,
         "bodies": [{"lo_m": [0.0] * dim, "hi_m": [0.4] * (dim - 1) + [0.2]}],
     }
     for k, v in (extra or {}).items():
-        sec, name = k.split(".", 1)
-        raw[sec][name] = v
+        if "." in k:
+            sec, name = k.split(".", 1)
+            raw[sec][name] = v
+        else:
+            raw[k] = v
     return m.build(m.validate(raw))
 
 
@@ -182,42 +185,15 @@ def test_coussot_runs_incompressible():
     assert np.min(lam) < 1.5  # the flowing part broke down
 
 
-def _closed_cell_packing(s, state):
-    """phi of the cells whose face neighbours are all fluid or wall (as ``_pressure`` measures it)."""
-    sc, params = s.scene, s.params
-    mass = np.asarray(_transfer.make_p2g(sc)(state, params)[0]).reshape(sc.grid_shape)
-    fill = _boundary.node_fill(sc).reshape(sc.grid_shape)
-    signs = [np.array(c) for c in np.ndindex(*(2,) * sc.dim)]
-    phi = _pressure._np_corner_sum(mass, signs) / (
-        float(params.material.rho) * sc.h**sc.dim * np.maximum(_pressure._np_corner_sum(fill, signs), 1e-12)
-    )
-    valid = _pressure.cell_valid(sc)
-    fluid = valid & (phi >= _pressure.FLUID_FRACTION)
-    closed = fluid.copy()
-    for a in range(sc.dim):
-        for sh in (-1, 1):
-            closed &= np.roll(fluid, sh, axis=a) | ~np.roll(valid, sh, axis=a)
-    return phi[closed]
-
-
-def test_a_void_inside_the_flow_closes():
-    """A layer whose interior is thinned out (every third particle removed from a 0.2 m x 0.1 m
-    block: packing 2/3 there, still fluid): the projection's volume error phi - 1 of the closed
-    cells pulls it together (a divergence-free velocity alone keeps a void as it is:
-    docs/validation.md, "Incompressible limit").  After 0.5 s every closed cell's packing is within
-    3 % of 1 and their mean within 1 %.  (A hole below packing 0.5 is air, p = 0, and collapses
-    under the pressure around it instead.)"""
-    s = _layer(mu=5.0, t_end=0.5, dtype="float32")
-    x = np.asarray(s.state.x)
-    block = (np.abs(x[:, 0] - 0.2) < 0.1) & (np.abs(x[:, 1] - 0.1) < 0.05)
-    thin = block & (np.cumsum(block) % 3 == 0)
-    state = s.state._replace(active=jnp.asarray(~thin))
-    phi0 = _closed_cell_packing(s, state)
-    assert phi0.min() < 0.85  # the thinned block is there at the start
-    final, _ = m.run(s.scene, state, s.params)
-    phi = _closed_cell_packing(s, final)
-    assert np.all(np.abs(phi - 1.0) < 0.03), phi
-    assert abs(float(np.mean(phi)) - 1.0) < 0.01
+def test_full_closed_box_has_a_bounded_pressure():
+    """A box full of material (no free surface: the pressure is fixed only up to a constant without
+    ``REGULARISATION``; found by ``mpmjax validate``'s Poiseuille case, which blew up): the layer
+    does not move off (|v| < 0.2 m/s; measured 0.06) and its pressure stays of the order of rho g H."""
+    s = _layer(mu=5.0, t_end=0.2, dtype="float32", extra={"bodies": [{"lo_m": [0.0, 0.0], "hi_m": [0.4, 0.4]}]})
+    final, _ = m.run(s.scene, s.state, s.params)
+    assert int(final.n_lost) == 0
+    assert float(np.max(np.abs(np.asarray(final.v)))) < 0.2  # free fall would be 2 m/s by 0.2 s
+    assert float(np.max(np.abs(np.asarray(final.p)))) < 10 * 1500.0 * 9.81 * 0.4
 
 
 def test_checkpoint_keeps_the_grid_pressure(tmp_path):
