@@ -8,9 +8,10 @@ allowed range; also a ``--resume`` that does not match, an ``--out`` that is a f
 created or written, a run refused by the memory estimate), 3 a run stopped by a failed health
 check (NaN, absurd J, lost particles, CFL; frames already written stay readable; ``mpmjax
 stress``: a case failed its criteria; ``mpmjax validate --size full``: a case missed its
-tolerance), 4 a run stopped because its output could not be written (frames already written stay readable), 130 interrupted by
-Ctrl-C, also while compiling (143 by SIGTERM; frames already written stay readable and ``mpmjax run --resume DIR`` continues), 1
-other errors (a bug).  Every status but 1 comes with a one-line message, no traceback.
+tolerance), 4 a run stopped because its output could not be written (frames already written
+stay readable), 130 interrupted by Ctrl-C, also while compiling (143 by SIGTERM; frames already
+written stay readable and ``mpmjax run --resume DIR`` continues), 1 other errors (a bug).  Every
+status but 1 comes with a one-line message, no traceback.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from calibration import cli as calcli
 from calibration import design_cli
 
 from . import rheometer
-from ._schema import _REQ, SCHEMA, SceneError, builtin_scenes
 from ._driver import (
     ANIMATION_MAX_FRAMES,
     CHECKPOINT_EVERY,
@@ -36,6 +36,7 @@ from ._driver import (
     run_scene,
 )
 from ._health import RunFailure
+from ._schema import _REQ, SCHEMA, SceneError, builtin_scenes
 from .studies import bench, converge, pareto, records, stress, validate
 from .studies.tables import run_study
 
