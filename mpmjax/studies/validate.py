@@ -597,7 +597,8 @@ CASES: dict[str, Case] = {
             "coussot-shear-box",
             "homogeneous simple shear at 5 1/s of a periodic box of thesis BASE Coussot "
             "material, h = 0.02 m, 1 s (5 structure times)",
-            "0-D rheometer (mpmjax.rheometer.constant_shear; exact lam(t) = lam_ss + (lam0 - lam_ss) e^(-alpha gdot t))",
+            "0-D rheometer (mpmjax.rheometer.constant_shear; exact lam(t) = lam_ss + (lam0 - lam_ss) "
+            "e^(-alpha gdot t))",
             0.02,
             "2 %: the structure target of tests/test_rheology_mpm.py (measured 6e-4 in lam, the MPM rate error)",
             _shear_cfgs,
@@ -707,7 +708,7 @@ def run_validate(
     """Run the suite's ``cases`` (default all) with the overrides ``base`` ({"numerics.KEY": value})
     applied to every case; write ``OUT/validate.json`` after every case and ``OUT/validate.png``
     at the end.  Finished cases of an earlier run with the same size and overrides are reused
-    unless ``fresh``.  Returns the JSON document."""
+    (and kept when not asked for again) unless ``fresh``.  Returns the JSON document."""
     if log is None:
 
         def log(msg):
@@ -743,6 +744,10 @@ def run_validate(
         },
         "cases": {},
     }
+    # finished cases that this invocation does not repeat (a narrower --case) stay in the JSON
+    for name, r in old.items():
+        if name not in cases and name in CASES and r.get("status") in ("ok", "failed", "rejected"):
+            doc["cases"][name] = dict(r, reused=True)
     for i, name in enumerate(cases):
         case = CASES[name]
         prev = old.get(name)
@@ -768,8 +773,9 @@ def run_validate(
             _finish(rec, size)
         doc["cases"][name] = rec
         atomic_write_text(jpath, json.dumps(_jsonable(doc), indent=1))
+        err = None if rec.get("error") is None else 100 * rec["error"]
         log(
-            f"  {name:28s} {rec['status']:8s} error {_fmt(None if rec.get('error') is None else 100 * rec['error'], '+.2f')}"
+            f"  {name:28s} {rec['status']:8s} error {_fmt(err, '+.2f')}"
             f" % (tol {100 * rec['tolerance']:.3g} %)  cpu {_fmt(rec.get('cpu_s'), '.1f')} s  pass {rec.get('pass')}"
             + (" (reused)" if rec.get("reused") else "")
             + (f"  {rec.get('reason')}" if rec.get("reason") else "")
