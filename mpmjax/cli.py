@@ -1,4 +1,4 @@
-"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | study |
+"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | validate | study |
 calibrate | design | sweep | sweep-merge``: argument parsing and dispatch only; the work is done by the
 library (``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
 ``calibration``.
@@ -7,10 +7,11 @@ Exit status: 0 success, 2 invalid input (the message names the key, the value an
 allowed range; also a ``--resume`` that does not match, an ``--out`` that is a file or cannot be
 created or written, a run refused by the memory estimate), 3 a run stopped by a failed health
 check (NaN, absurd J, lost particles, CFL; frames already written stay readable; ``mpmjax
-stress``: a case failed its criteria), 4 a run stopped because its output could not be written
-(frames already written stay readable), 130 interrupted by Ctrl-C, also while compiling (143 by
-SIGTERM; frames already written stay readable and ``mpmjax run --resume DIR`` continues), 1
-other errors (a bug).  Every status but 1 comes with a one-line message, no traceback.
+stress``: a case failed its criteria; ``mpmjax validate --size full``: a case missed its
+tolerance), 4 a run stopped because its output could not be written (frames already written
+stay readable), 130 interrupted by Ctrl-C, also while compiling (143 by SIGTERM; frames already
+written stay readable and ``mpmjax run --resume DIR`` continues), 1 other errors (a bug).  Every
+status but 1 comes with a one-line message, no traceback.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from calibration import cli as calcli
 from calibration import design_cli
 
 from . import rheometer
-from ._schema import _REQ, SCHEMA, SceneError, builtin_scenes
 from ._driver import (
     ANIMATION_MAX_FRAMES,
     CHECKPOINT_EVERY,
@@ -36,7 +36,8 @@ from ._driver import (
     run_scene,
 )
 from ._health import RunFailure
-from .studies import bench, converge, pareto, records, stress
+from ._schema import _REQ, SCHEMA, SceneError, builtin_scenes
+from .studies import bench, converge, pareto, records, stress, validate
 from .studies.tables import run_study
 
 
@@ -186,6 +187,11 @@ def main(argv=None) -> int:
     )
     converge.add_arguments(pcv)
     pcv.set_defaults(fn=converge.cmd_converge)
+    pva = sub.add_parser(
+        "validate", help="validation suite: every case against its exact or experimental reference, error and CPU time"
+    )
+    validate.add_arguments(pva)
+    pva.set_defaults(fn=validate.cmd_validate)
     pst = sub.add_parser("study", help="thesis sensitivity tables and the stiff-viscosity comparison (slow)")
     pst.add_argument("name", choices=("numerical", "physical", "stiff"))
     pst.add_argument("--out", default="studies", help="output directory")

@@ -1,0 +1,66 @@
+"""``mpmjax validate`` (issue 31 item 4): the lubrication reference's two branches meet, a ci run of
+two cheap cases through the command writes every case's reference, error and CPU time (and claims no
+pass), a rerun reuses finished cases, and a bad ``--set`` is refused with exit 2 naming the key.
+The full suite's figures are a command (``mpmjax validate --size full``), not a test."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from mpmjax.cli import main
+from mpmjax.studies import validate
+
+CHEAP = ["poiseuille", "coussot-shear-box"]
+
+
+def test_lubrication_front_is_continuous_at_b_one_third():
+    # both branches give 1.5 L at B = 1/3: L + L/(6B) = (9 L^3/(8B))^(1/3)
+    for aspect in (1.0, 2.0, 3.0):
+        lo = validate.lubrication_xinf(1 / 3 - 1e-12, aspect)
+        hi = validate.lubrication_xinf(1 / 3, aspect)
+        assert lo == pytest.approx(1.5 * aspect * validate.LUB_H0, rel=1e-9)
+        assert hi == pytest.approx(lo, rel=1e-9)
+
+
+def test_every_case_has_a_justified_tolerance():
+    for name, case in validate.CASES.items():
+        assert 0 < case.tolerance < 1, name
+        assert case.reference and case.why and case.cost, name
+
+
+def test_ci_run_writes_json_and_plot_and_reuses_finished_cases(tmp_path, capsys):
+    out = tmp_path / "v"
+    assert main(["validate", "--size", "ci", "--case", *CHEAP, "--out", str(out)]) == 0
+    doc = json.loads((out / "validate.json").read_text())
+    assert doc["size"] == "ci" and list(doc["cases"]) == CHEAP
+    for name in CHEAP:
+        r = doc["cases"][name]
+        assert r["status"] == "ok", r
+        assert r["reference"] > 0 and r["reference_source"]
+        assert isinstance(r["error"], float) and r["tolerance"] == validate.CASES[name].tolerance
+        assert r["cpu_s"] > 0 and r["wall_s"] > 0 and r["n_steps"] > 0
+        assert r["pass"] is None and r["size"] == "ci"  # a ci run claims nothing
+    assert (out / "validate.png").stat().st_size > 0
+    capsys.readouterr()
+    # a rerun without --fresh takes the finished cases from the JSON
+    assert main(["validate", "--size", "ci", "--case", *CHEAP, "--out", str(out)]) == 0
+    again = json.loads((out / "validate.json").read_text())
+    assert all(again["cases"][n].get("reused") for n in CHEAP)
+    assert again["cases"]["poiseuille"]["error"] == doc["cases"]["poiseuille"]["error"]
+
+
+@pytest.mark.parametrize(
+    "item, named",
+    [
+        ("numerics.shape=banana", "numerics.shape"),  # a value outside the key's choices
+        ("numerics.no_such_key=1", "numerics.no_such_key"),  # an unknown key
+        ("material.viscosity_pa_s=3", "material.viscosity_pa_s"),  # the physics is the suite's, not --set's
+    ],
+)
+def test_bad_set_exits_2_naming_the_key(tmp_path, capsys, item, named):
+    rc = main(["validate", "--size", "ci", "--case", "poiseuille", "--set", item, "--out", str(tmp_path / "v")])
+    assert rc == 2
+    assert named in capsys.readouterr().err
+    assert not (tmp_path / "v" / "validate.json").exists()
