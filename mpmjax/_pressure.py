@@ -19,7 +19,7 @@ correction obeys the walls (a slip wall's separation and Coulomb friction are ap
 
 Why Q1-P0: one pressure per cell against 2^d velocity nodes is one constraint per cell, a count
 that does not lock (the particles' J is a constraint per particle, ppc^d of them per cell: it
-locks as kappa grows, docs/validation.md, "Incompressible limit").  Its spurious pressure mode
+locks as kappa grows, docs/incompressible.md).  Its spurious pressure mode
 (the checkerboard) has B^T p = 0 in the interior, so it moves nothing, and the free-surface cells
 (p = 0) pin it.
 
@@ -34,8 +34,8 @@ per cent as particles cross cells, and a one-step correction turns that into vel
 times the fluctuation) that fluidises a thixotropic deposit.  Under-filled cells are not pulled
 together: closing them (phi_c - 1 in cells surrounded by fluid) kept the lab deposit's interior at
 phi = 1.000 but kept yield-stress slumps creeping past x_inf (+21 % and +41 %), so it is not done;
-the price is a dilated interior (phi about 0.88 in the lab deposit; docs/validation.md,
-"Incompressible limit", has the figures of each variant).  eps D pins the pressure's level in a
+the price is a dilated interior (phi about 0.88 in the lab deposit; docs/incompressible.md has
+the figures of each variant).  eps D pins the pressure's level in a
 region with no free surface (a full closed box), where A alone is singular; there the system's mean
 is removed too, since a closed box's volume can be kept but not corrected.
 

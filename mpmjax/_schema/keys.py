@@ -172,7 +172,7 @@ _HEAD: dict[str, Key] = {
         "material.bulk_modulus_pa (the thesis's weakly compressible MPM: the time step follows its sound speed, "
         "and a stiff kappa locks). incompressible: one pressure per grid cell solved every step so that the flow "
         "keeps its volume (fractional step, conjugate gradients; kappa is not used); the time step then follows the "
-        "flow speed and the Maxwell shear waves (docs/validation.md, \"Incompressible limit\").",
+        "flow speed and the Maxwell shear waves (docs/incompressible.md).",
         choices=("explicit", "incompressible"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),

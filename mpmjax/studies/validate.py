@@ -118,7 +118,7 @@ def _scene_numerics(base: dict, own: dict) -> dict:
 
 LUB_H0 = 0.1  # [m] block height
 # 60 s: at a Galileo number of 1 the slumps creep towards x_inf for a minute (B = 0.05, L = H0: -9.6 % at
-# 20 s, -3.7 % at 60 s, at rest; docs/validation.md, "Incompressible limit"); L = 2 H0 needs longer still.
+# 20 s, -3.7 % at 60 s, at rest; docs/incompressible.md); L = 2 H0 needs longer still.
 # The loop CPU times in the case table were measured at 40 s.
 LUB_SIZE = {"full": {"cells": 16, "t_end": 60.0}, "ci": {"cells": 4, "t_end": 0.5}}
 
