@@ -184,9 +184,7 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
     # raising; build() rejects a limit that is not a positive finite number.
     f64 = np.float64
     with np.errstate(all="ignore"):
-        # with the pressure solved on the grid (numerics.pressure) only the Maxwell shear waves are explicit
-        k_expl = f64(kappa) if cfg["numerics.pressure"] == "explicit" else f64(0.0)
-        c = float(np.sqrt((k_expl + f64(4.0 / 3.0) * f64(G)) / f64(rho)))
+        c = float(np.sqrt((f64(kappa) + f64(4.0 / 3.0) * f64(G)) / f64(rho)))
         vscale = cfg["numerics.velocity_scale_m_s"]
         if vscale == 0.0:
             # + half a particle spacing: the top of the material, not its top particle centre
@@ -195,10 +193,11 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
                 np.sqrt(f64(2.0) * f64(cfg["gravity.g_m_s2"]) * f64(H))
                 + np.max(np.linalg.norm(np.asarray(v, float), axis=1), initial=0.0)
             )
-        if maxwell and implicit and not cfg["numerics.maxwell_shear_modulus_pa"]:
-            # the pressure solved on the grid: G = rho |v|^2, so the Maxwell shear waves are no
-            # faster than the flow and the step follows the flow speed
-            G = float(f64(rho) * f64(vscale) ** 2)
+        if implicit:
+            # the pressure solved on the grid: only the Maxwell shear waves are explicit, and G = 0 means
+            # G = rho |v|^2, so that they are no faster than the flow and the step follows the flow speed
+            if maxwell and not cfg["numerics.maxwell_shear_modulus_pa"]:
+                G = float(f64(rho) * f64(vscale) ** 2)
             c = float(np.sqrt(f64(4.0 / 3.0) * f64(G) / f64(rho)))
         dt_wave = float(f64(cfg["numerics.cfl"]) * f64(h) / (f64(c) + f64(vscale)))
         mu_max = float(rheology.max_viscosity(mat))

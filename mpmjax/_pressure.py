@@ -160,16 +160,16 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
             cols.append(coef * (_roll(t, 1, a) - t))
         return cols
 
+    def to_cell(t, corner):
+        """A nodal field (grid_shape) read at each cell's ``corner`` (an offset in {0, 1}^dim)."""
+        for a in range(dim):
+            if corner[a]:
+                t = _roll(t, -1, a)
+        return t
+
     def corner_sum(g):
         """Sum over a cell's 2^d corner nodes of a nodal scalar (grid_shape)."""
-        out = 0.0
-        for s in signs:
-            t = g
-            for a in range(dim):
-                if s[a]:
-                    t = _roll(t, -1, a)
-            out = out + t
-        return out
+        return sum(to_cell(g, c) for c in signs)
 
     fill_c = _np_corner_sum(np.asarray(fill, float).reshape(shape), signs)  # static
 
@@ -215,18 +215,14 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
         n_fluid = jnp.maximum(jnp.sum(fluid), 1)
         b = jnp.where(jnp.any(surface), b, jnp.where(fluid, b - jnp.sum(b) / n_fluid, 0.0))
         # Jacobi: diag(A)_c = sum over corners i of coef^2 s^T W_i s
-        diag = 0.0
-        for sgn in signs:
-            sg = 2.0 * sgn - 1.0
-            if diagonal:
-                term = sum(W[a] for a in range(dim))
-            else:
+        if diagonal:
+            diag = coef**2 * corner_sum(sum(W))
+        else:
+            diag = 0.0
+            for sgn in signs:
+                sg = 2.0 * sgn - 1.0
                 term = sum(float(sg[a] * sg[b]) * W[a][b] for a in range(dim) for b in range(dim))
-            t = coef**2 * term
-            for a in range(dim):
-                if sgn[a]:
-                    t = _roll(t, -1, a)
-            diag = diag + t
+                diag = diag + coef**2 * to_cell(term, sgn)
         shift = REGULARISATION * diag
         diag = diag + shift
         inv_diag = jnp.where(fluid & (diag > 0.0), 1.0 / jnp.where(diag > 0.0, diag, 1.0), 0.0)

@@ -62,16 +62,12 @@ from ._transfer import make_g2p, make_p2g, packing_fraction, volume_average, vol
 EMPTY_NODE_FRACTION = 1e-9
 
 
-def _linear_conditions(scene: Scene, walls, slip_nb, terrain, pipe):
+def _linear_conditions(walls, terrain, t_mask, t_nrm, pipe):
     """The walls' conditions as a linear projection P (the pressure solve's, ``_pressure``):
     noslip and the pipe's driven nodes v = 0; every other wall and terrain kind removes the
     normal component (a slip wall's separation, a Navier wall's slip and Coulomb friction are
-    the step's own, applied after the solve)."""
-    if terrain is not None:
-        xn = scene.node_positions()
-        t_mask = xn[:, -1] <= terrain.height(xn[:, :-1]) + 1e-6 * scene.h
-        t_nrm = terrain.normal(xn[:, :-1])
-    pipe_on = pipe if pipe is not None else None
+    the step's own, applied after the solve).  ``t_mask``, ``t_nrm``: the terrain's nodes and
+    normals as ``make_step`` has them; ``pipe``: the pipe's driven nodes or None."""
 
     def P(v):
         for mask, nrm, wall in walls:
@@ -82,8 +78,8 @@ def _linear_conditions(scene: Scene, walls, slip_nb, terrain, pipe):
             else:
                 n = jnp.asarray(t_nrm, v.dtype)
                 v = jnp.where(t_mask[:, None], v - jnp.sum(v * n, axis=1)[:, None] * n, v)
-        if pipe_on is not None:
-            v = jnp.where(pipe_on[:, None], 0.0, v)
+        if pipe is not None:
+            v = jnp.where(pipe[:, None], 0.0, v)
         return v
 
     return P
@@ -141,7 +137,8 @@ def make_step(scene: Scene, axis: str | None = None):
             raise ValueError(
                 f"numerics.pressure = {scene.pressure!r} is not available with numerics.decomposition = 'slab'"
             )
-        project = make_projection(scene, _linear_conditions(scene, walls, slip_nb, terrain, pipe), node_fill(scene))
+        t_args = (t_mask, t_nrm) if terrain is not None else (None, None)
+        project = make_projection(scene, _linear_conditions(walls, terrain, *t_args, pipe), node_fill(scene))
 
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
 

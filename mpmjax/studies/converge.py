@@ -445,6 +445,17 @@ def plot(doc: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def run_meta() -> dict:
+    """Where and when a study ran: Python, machine, cores, jax, start time (UTC)."""
+    return {
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "jax": jax.__version__,
+        "started_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
+    }
+
+
 def run_converge(
     cases=("lab", "slump", "water"),
     *,
@@ -487,13 +498,7 @@ def run_converge(
     n_levels = levels or (CI["levels"] if size == "ci" else LEVELS)
     doc: dict = {
         "size": size,
-        "meta": {
-            "python": platform.python_version(),
-            "machine": platform.machine(),
-            "cpu_count": os.cpu_count(),
-            "jax": jax.__version__,
-            "started_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
-        },
+        "meta": run_meta(),
         "profile_station_m": PROFILE_STATION,
         "profile_bandwidth_m": PROFILE_BANDWIDTH,
         "cases": {},

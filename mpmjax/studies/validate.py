@@ -25,8 +25,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
-import platform
 import sys
 import time
 from collections.abc import Callable
@@ -46,6 +44,7 @@ from .._schema import SceneError, load_scene, parse_override, validate
 from .._simulate import make_advance
 from .._step import make_step
 from . import converge
+from .converge import run_meta
 
 RHO, G = 1000.0, 9.81
 
@@ -749,13 +748,7 @@ def run_validate(
     doc: dict = {
         "size": size,
         "overrides": base,
-        "meta": {
-            "python": platform.python_version(),
-            "machine": platform.machine(),
-            "cpu_count": os.cpu_count(),
-            "jax": jax.__version__,
-            "started_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
-        },
+        "meta": run_meta(),
         "cases": {},
     }
     # finished cases that this invocation does not repeat (a narrower --case) stay in the JSON
