@@ -248,7 +248,7 @@ def test_joint_twin_recovers_all_five_coussot_parameters():
     must come back within 10 % of the truth.  The Gauss-Newton relative std at the fit are 4.6 %
     (lambda0) and under 1 % for the others, so 10 % is about 2 sigma for lambda0 and 10+ sigma for
     the rest.  The same fit through the CLI: every parameter within 3.3 %, 23 iterations, 477 s
-    CPU (docs/calibration.md, "The joint twin"; L-BFGS); this test with the default
+    CPU (docs/calibration-twins.md, "The joint twin"; L-BFGS); this test with the default
     Levenberg-Marquardt since 2026-12-02: 85 s on one core of the idle VM."""
     from calibration.fit import fit
 

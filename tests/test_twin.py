@@ -6,7 +6,7 @@ from data/twin-small-dambreak.toml at h = 0.01 m (Coussot BASE: mu0 = 4 Pa s, al
 T = 0.5 s, n = 2.5, lambda0 = 1.5), kernel bandwidth 0.04 m, noise sigma = 1 mm, at
 t = 0.5, 1.0 and 1.5 s (138 stations).  The fit runs the same scene at h = 0.02 m.
 
-What the tolerances rest on (measured, docs/calibration.md "Twin experiments"): at the fit
+What the tolerances rest on (measured, docs/calibration-twins.md "Twin experiments"): at the fit
 resolution the model cannot reproduce the finer run exactly.  With the true parameters the
 h = 0.02 m model leaves a loss (mean squared normalised residual) of 10.27, almost all of it
 resolution error (the h = 0.01 m model at the truth leaves 0.75: the noise, partly clipped at
@@ -63,7 +63,7 @@ def test_twin_data_are_what_the_header_says(twin):
     assert max(abs(o) for o in exp.time_offsets_s) < 1e-9
 
 
-@pytest.mark.slow  # CI time: the notebook test runs the same fit (docs/calibration.md, figures)
+@pytest.mark.slow  # CI time: the notebook test runs the same fit (docs/calibration-twins.md, figures)
 def test_twin_fit_mu0_lambda0_from_a_factor_two_guess(twin):
     setup, exp = twin
     ps = ParameterSet.from_names(["mu0", "lambda0"], setup.params.material, init={"mu0": 8.0, "lambda0": 3.0})
@@ -184,7 +184,7 @@ def test_multilevel_twin_mu0_with_a_true_total_error_bar(tmp_path, capsys):
     reported 2 sigma total interval (or mu0 named poorly identified); fit.json's std_numerical is
     the shift between the levels and std the quadrature sum.  Also asserted, because it is why
     the numerical std exists: the resolution error dominates, std_numerical > 5 std_statistical
-    (measured with L-BFGS 2.65 against 0.087 Pa s, docs/calibration.md; with the default
+    (measured with L-BFGS 2.65 against 0.087 Pa s, docs/calibration-twins.md; with the default
     Levenberg-Marquardt since 2026-12-02: coarse 2.932, fine 5.627 Pa s (+2.3 %), numerical 2.7
     against statistical 0.087), and the coarse level alone is off by more than 2 statistical std;
     at the data's resolution the loss falls to the noise level (0.60).  About 170 s on the idle
