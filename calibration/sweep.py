@@ -44,14 +44,25 @@ import numpy as np
 
 import mpmjax
 
-from .distributed import BatchLayout, is_writer, shard_range
+from .distributed import (
+    BatchLayout,
+    DistributedError,
+    check_join_options,
+    check_local_devices,
+    is_writer,
+    join,
+    make_local_devices,
+    shard_range,
+)
 from .params import SCENE_KEYS
 
 __all__ = [
     "FIELD_KEYS",
     "NO_SENSITIVITY_M",
     "merge_parts",
+    "merge_sweep",
     "parse_vary",
+    "run_sweep",
     "sweep",
     "sweep_figures",
     "write_part",
@@ -418,6 +429,82 @@ def merge_parts(folder) -> dict:
         res[k] = np.asarray(res[k], float)
     res["time_to_rest_s"] = np.asarray(res["time_to_rest_s"], float)
     res.update(shard=None, parts=n_jobs, wall_s=float(sum(d["wall_s"] for d in parts)))
+    return res
+
+
+def _print_sweep(res, paths, how):
+    names = list(res["vary"])
+    print(
+        " ".join(f"{k:>10s}" for k in names) + f" {'runout [m]':>11s} {'rest [s]':>9s} {'lost':>5s}",
+        file=sys.stderr,
+    )
+    for i, c in enumerate(res["cases"]):
+        print(
+            " ".join(f"{c[k]:10.4g}" for k in names)
+            + f" {res['final_runout_m'][i]:11.4f} {res['time_to_rest_s'][i]:9.3g} {int(res['n_lost'][i]):5d}",
+            file=sys.stderr,
+        )
+    print(f"sweep: {len(res['cases'])} cases {how}; wrote {', '.join(str(p) for p in paths)}", file=sys.stderr)
+
+
+def run_sweep(
+    scene,
+    vary: dict,
+    *,
+    overrides=None,
+    chunk: int | None = None,
+    out="sweep-out",
+    quiet: bool = False,
+    devices: int | None = None,
+    shard: tuple[int, int] | None = None,
+    coordinator: str | None = None,
+    num_processes: int | None = None,
+    process_id: int | None = None,
+    distributed: bool = False,
+) -> dict:
+    """The whole of ``mpmjax sweep`` as one call: ``sweep`` over ``vary`` (``parse_vary``'s dict)
+    on ``devices`` host devices, in one ``jax.distributed`` job (``coordinator``, ...,
+    ``calibration.distributed``) or as the job ``shard = (I, N)`` of an array; writes ``out``
+    (``write_sweep``, or ``write_part`` for a shard; only process 0 of a distributed job), prints
+    the table unless ``quiet`` and returns ``sweep``'s dict.  Must run before any JAX computation
+    of the process (the host devices and the distributed job are set up first)."""
+    options = check_join_options(coordinator, num_processes, process_id, distributed)
+    make_local_devices(devices)
+    if shard is not None and options is not None:
+        raise DistributedError(
+            "--shard and --coordinator / --num-processes / --process-id / --distributed both given; allowed: one "
+            "(--shard: independent jobs merged by `mpmjax sweep-merge`; the others: one jax.distributed job)"
+        )
+    join(options)  # before any JAX computation; nothing for a single-process run
+    check_local_devices(devices)
+    writer = is_writer()
+    res = sweep(scene, vary, overrides=overrides, chunk=chunk, progress=not quiet, shard=shard)
+    how = (
+        f"in batches of {res['chunk']} on {res['n_devices']} device(s) of {res['n_processes']} process(es), "
+        f"{res['wall_s']:.1f} s"
+    )
+    if shard is not None:
+        path = write_part(res, out)
+        if not quiet:
+            ci = res["case_index"]
+            share = f"cases {ci[0]} .. {ci[-1]}" if len(ci) else "no case"
+            _print_sweep(res, [path], f"(job {shard[0]} of {shard[1]}: {share} of {res['n_cases']}) {how}")
+        return res
+    if not writer:  # the other processes of a distributed job leave --out to process 0
+        return res
+    paths = write_sweep(res, out)
+    if not quiet:
+        _print_sweep(res, paths, how)
+    return res
+
+
+def merge_sweep(parts, out=None, quiet: bool = False) -> dict:
+    """The whole of ``mpmjax sweep-merge``: ``merge_parts(parts)`` written to ``out`` (default: the
+    parts' folder) as ``write_sweep`` writes a sweep; prints the table unless ``quiet``."""
+    res = merge_parts(parts)
+    paths = write_sweep(res, out or parts)
+    if not quiet:
+        _print_sweep(res, paths, f"from {res['parts']} part(s), {res['wall_s']:.1f} s of wall time in all")
     return res
 
 

@@ -5,9 +5,14 @@
 * The import graph (module-level and function-level imports, parsed with ``ast``) has no
   cycle among our modules.
 * No library module imports the studies (``mpmjax.studies``: benchmarks and
-  reproductions); only the command line (``mpmjax.cli``) and the studies themselves do.
-* The simulator does not import its client: no ``mpmjax`` module but ``cli`` imports
-  ``calibration``.
+  reproductions); only the command line (the package ``mpmjax.cli``) and the studies themselves do.
+* The simulator does not import its client: no ``mpmjax`` module outside ``mpmjax.cli`` (and the
+  studies) imports ``calibration``.
+* Nothing imports the command line: no module outside ``mpmjax.cli`` (the library, the studies,
+  ``calibration``) imports ``mpmjax.cli``.
+* Only the command line parses options: ``argparse`` is imported by ``mpmjax.cli`` and by the
+  two study scripts run as ``python -m mpmjax.studies.X`` (``STUDY_SCRIPTS``: measurements of
+  their own, not ``mpmjax`` commands), by no other module of ``mpmjax`` or ``calibration``.
 * ``calibration`` uses only the public ``mpmjax`` API: ``mpmjax`` itself and its public
   submodules (no ``mpmjax._private``).
 * Imports inside functions are only the optional heavy ones (matplotlib), each with a
@@ -17,7 +22,7 @@
   rheometer do not import the driver; the driver does not import the command line, the studies
   or the ``mpmjax`` package itself, which only re-export.
 * The modules of a package split by concept (``mpmjax._driver``, ``mpmjax._schema``,
-  ``mpmjax.plotting``, ``mpmjax.rheometer``) import each other and the layers below, never their
+  ``mpmjax.plotting``, ``mpmjax.rheometer``, ``mpmjax.cli``) import each other and the layers below, never their
   own package (its ``__init__`` only re-exports them).
 """
 
@@ -99,6 +104,14 @@ def _is_study(m: str) -> bool:
     return m == "mpmjax.studies" or m.startswith("mpmjax.studies.")
 
 
+def _is_cli(m: str) -> bool:
+    return m == "mpmjax.cli" or m.startswith("mpmjax.cli.")
+
+
+# study modules that are scripts of their own (``python -m mpmjax.studies.X`` with its options)
+STUDY_SCRIPTS = ("mpmjax.studies.fit_speed", "mpmjax.studies.hazard_cost")
+
+
 def test_every_module_imports_on_its_own():
     # one interpreter (jax is imported once); our modules are dropped from sys.modules before each import
     code = (
@@ -143,9 +156,26 @@ def test_import_graph_has_no_cycle():
 def test_library_does_not_import_studies_or_calibration():
     bad = []
     for m, deps in GRAPH.items():
-        if not m.startswith("mpmjax") or m == "mpmjax.cli" or _is_study(m):
+        if not m.startswith("mpmjax") or _is_cli(m) or _is_study(m):
             continue
         bad += [f"{m} imports {o}" for o in deps if _is_study(o) or o.startswith("calibration")]
+    assert not bad, bad
+
+
+def test_nothing_imports_the_command_line():
+    bad = [f"{m} imports {o}" for m, deps in GRAPH.items() if not _is_cli(m) for o in deps if _is_cli(o)]
+    assert not bad, bad
+    assert {"mpmjax.cli", "mpmjax.cli._commands", "mpmjax.cli._status"} <= set(MODULES)
+
+
+def test_only_the_command_line_imports_argparse():
+    bad = [
+        f"{path.relative_to(ROOT)}:{line} imports {name}"
+        for m, path in MODULES.items()
+        if not _is_cli(m) and m not in STUDY_SCRIPTS
+        for name, line, _ in _imports(m, path)
+        if name.split(".")[0] == "argparse"
+    ]
     assert not bad, bad
 
 
@@ -189,7 +219,7 @@ def test_imports_inside_functions_are_optional_heavy_ones_with_a_reason():
 
 
 # the library's layers, lowest first: a module may import its own layer and the ones below
-SPLIT_PACKAGES = ("mpmjax._driver", "mpmjax._schema", "mpmjax.plotting", "mpmjax.rheometer")
+SPLIT_PACKAGES = ("mpmjax._driver", "mpmjax._schema", "mpmjax.plotting", "mpmjax.rheometer", "mpmjax.cli")
 
 
 def _in(m: str, pkg: str) -> bool:
@@ -199,7 +229,7 @@ def _in(m: str, pkg: str) -> bool:
 def _layer(m: str) -> int | None:
     """0 the core, 1 the plots and the rheometer, 2 the run driver, 3 the package's re-exports,
     the command line and the studies; None for ``calibration`` (a client, checked above)."""
-    if m in ("mpmjax", "mpmjax.cli") or _is_study(m):
+    if m == "mpmjax" or _is_cli(m) or _is_study(m):
         return 3
     if _in(m, "mpmjax._driver"):
         return 2
@@ -212,6 +242,7 @@ def test_the_layers_are_what_the_packages_are():
     assert {m for m in MODULES if _layer(m) == 2} >= {"mpmjax._driver", "mpmjax._driver.run", "mpmjax._driver.loop"}
     assert {m for m in MODULES if _layer(m) == 1} >= {"mpmjax.plotting", "mpmjax.plotting._report", "mpmjax.rheometer"}
     assert _layer("mpmjax._step") == 0 and _layer("mpmjax.studies.stress") == 3 and _layer("calibration.fit") is None
+    assert _layer("mpmjax.cli") == _layer("mpmjax.cli._status") == 3
 
 
 def test_no_upward_import_between_layers():

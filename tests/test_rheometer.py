@@ -8,7 +8,6 @@ All data used for fitting here are SYNTHETIC (generated from known parameters); 
 data are fitted with calibration (FlowCurveExperiment, TransientExperiment, calibration.fit.fit).
 """
 
-import argparse
 import csv
 import dataclasses
 import json
@@ -441,15 +440,16 @@ def test_a_registered_law_with_two_internal_variables(tmp_path):
 # --------------------------------------------------------------------------------------
 
 
-def _parse(argv):
-    ap = argparse.ArgumentParser()
-    R.add_arguments(ap)
-    return ap.parse_args(argv)
+def _rheometer(argv):
+    """``mpmjax rheometer ARGV``: its exit status."""
+    from mpmjax.cli import main
+
+    return main(["rheometer", *argv])
 
 
 def test_cli_writes_outputs(tmp_path, capsys):
     out = tmp_path / "rheo"
-    rc = R.run_from_args(_parse(["--out", str(out), "--rates", "0.1,1,10,100", "--t-end", "1000"]))
+    rc = _rheometer(["--out", str(out), "--rates", "0.1,1,10,100", "--t-end", "1000"])
     assert rc == 0
     for f in ("viscosity_vs_time.png", "flow_curve.png", "rheometer.csv", "rheometer.json"):
         assert (out / f).stat().st_size > 0
@@ -491,7 +491,7 @@ def test_cli_writes_outputs(tmp_path, capsys):
 )
 def test_cli_rejects_bad_input(tmp_path, capsys, argv, option):
     out = tmp_path / "o"
-    rc = R.run_from_args(_parse(argv + ["--out", str(out)]))
+    rc = _rheometer(argv + ["--out", str(out)])
     assert rc == 2
     err = capsys.readouterr().err
     assert option in err and "allowed range" in err, err

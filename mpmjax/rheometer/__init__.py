@@ -61,14 +61,14 @@ restarts its FSAL stage after it instead of rejecting steps to locate it.
 Use float64 (``jax.config.update("jax_enable_x64", True)``) for accuracy; in
 float32 the tolerances are raised to rtol = atol = 1e-4 (errors ~1e-3 in lam).
 
-The physics is in ``_physics``, the files ``write_outputs`` writes in ``_files``, and the
-``mpmjax rheometer`` command's options and run in ``_command``; all re-exported here.
+The physics is in ``_physics`` and the files ``write_outputs`` writes in ``_files``; both
+re-exported here.  The ``mpmjax rheometer`` command (its options and handler) is
+``mpmjax.cli._rheometer``.
 """
 
 from __future__ import annotations
 
 from .._rheology import BASE_VALUES
-from ._command import add_arguments, run_from_args
 from ._files import write_outputs
 from ._physics import (
     MIZANI_FAST_VALUES,
@@ -96,8 +96,6 @@ __all__ = [
     "steady_flow_curve",
     "critical_point",
     "write_outputs",
-    "add_arguments",
-    "run_from_args",
 ]
 
 

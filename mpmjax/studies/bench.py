@@ -314,22 +314,6 @@ def bench_batch(steps: int, batch: int = 16, dtype="float32", reps=3, coarse=Fal
     return r
 
 
-def add_arguments(p):
-    p.add_argument("--out", default="bench.json", help="JSON file to write")
-    p.add_argument("--steps", type=int, default=2000, help="steps per measurement (default scene, mpm88)")
-    p.add_argument("--dtype", default="float32", choices=("float32", "float64"), help="default scene, mpm88, grad")
-    p.add_argument("--reps", type=int, default=3, help="timed repetitions per measurement, the best kept")
-    p.add_argument("--quick", action="store_true", help="tiny sizes and step counts (tests; not a benchmark)")
-    p.add_argument(
-        "--large", action="store_true", help="add 1e6 particles to the scaling runs (minutes per point on 2 cores)"
-    )
-    p.add_argument(
-        "--only",
-        default=",".join(SECTIONS),
-        help=f"comma-separated sections to run, of {', '.join(SECTIONS)} (default: all)",
-    )
-
-
 SECTIONS = ("scenes", "scaling", "gradient", "batch")
 
 
@@ -341,7 +325,7 @@ def _sections(text: str) -> tuple:
     return got
 
 
-def _meta(args, quick: bool, large: bool) -> dict:
+def _meta(dtype: str, reps: int, steps: int, only: str, quick: bool, large: bool) -> dict:
     sizes = [1e3] if quick else [1e3, 1e4, 1e5] + ([1e6] if large else [])
     return {
         "machine": platform.machine(),
@@ -351,11 +335,11 @@ def _meta(args, quick: bool, large: bool) -> dict:
         "jax": jax.__version__,
         "backend": jax.default_backend(),
         "devices": [str(d) for d in jax.devices()],
-        "dtype": args.dtype,
+        "dtype": dtype,
         "quick": quick,
-        "reps": 1 if quick else args.reps,
-        "steps": args.steps,
-        "only": getattr(args, "only", ",".join(SECTIONS)),
+        "reps": 1 if quick else reps,
+        "steps": steps,
+        "only": only,
         "load_avg_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "scaling_sizes": sizes,
         "memory_source": "XLA Compiled.memory_analysis(): temporary buffer bytes of the compiled function",
@@ -373,36 +357,48 @@ def _write_json(path, doc) -> None:
     os.replace(tmp, path)
 
 
-def run_bench(args) -> int:
-    if args.steps < 1:
-        raise ValueError(f"--steps = {args.steps} is invalid: allowed range >= 1")
-    quick = bool(getattr(args, "quick", False))
-    large = bool(getattr(args, "large", False))
-    only = _sections(getattr(args, "only", ",".join(SECTIONS)))
+def run_bench(
+    out="bench.json",
+    *,
+    steps: int = 2000,
+    dtype: str = "float32",
+    reps: int = 3,
+    quick: bool = False,
+    large: bool = False,
+    only: str = ",".join(SECTIONS),
+) -> int:
+    """``mpmjax bench``: measure the sections ``only`` (comma-separated, of ``SECTIONS``), write the
+    JSON ``out`` after each and print the table; the arguments are the command's options.  Raises
+    ``ValueError`` naming the option for an invalid value."""
+    if steps < 1:
+        raise ValueError(f"--steps = {steps} is invalid: allowed range >= 1")
+    quick = bool(quick)
+    large = bool(large)
+    sections = _sections(only)
 
     def log(*a):
         print(*a, file=sys.stderr, flush=True)
 
-    if args.reps < 1:
-        raise ValueError(f"--reps = {args.reps} is invalid: allowed range >= 1")
-    reps = 1 if quick else args.reps
-    steps = min(args.steps, 20) if quick else args.steps
-    results = {}
-    doc = {"meta": _meta(args, quick, large), "results": results, "complete": False}
+    if reps < 1:
+        raise ValueError(f"--reps = {reps} is invalid: allowed range >= 1")
+    doc = {"meta": _meta(dtype, reps, steps, only, quick, large), "results": {}, "complete": False}
+    results = doc["results"]
+    reps = 1 if quick else reps
+    steps = min(steps, 20) if quick else steps
 
     def save():
         # after every section, atomically: an interrupted or killed bench keeps what it measured
-        _write_json(args.out, doc)
+        _write_json(out, doc)
 
-    if "scenes" in only or "scaling" in only:
+    if "scenes" in sections or "scaling" in sections:
         # the machine's memory bandwidth, the floor the traffic figures of each row are read against
         doc["meta"]["memory_bandwidth"] = memory_bandwidth(16 if quick else 256, 1 if quick else 5)
         log(f"memory bandwidth (STREAM add in numpy, triad in XLA): {doc['meta']['memory_bandwidth']}")
-    if "scenes" in only:
-        cfg = load_scene("dambreak-lab", {"numerics.dtype": args.dtype})
+    if "scenes" in sections:
+        cfg = load_scene("dambreak-lab", {"numerics.dtype": dtype})
         results["default-scene"] = _measure(build(cfg), steps, reps)
         raw = json.loads(json.dumps(MPM88))
-        raw["numerics"]["dtype"] = args.dtype
+        raw["numerics"]["dtype"] = dtype
         setup = build(validate(raw))
         assert setup.scene.n_particles == 8192
         results["mpm88-equivalent"] = _measure(setup, steps, reps)
@@ -410,7 +406,7 @@ def run_bench(args) -> int:
             log(f"{k}: {r['particle_steps_per_s']:.3g} particle-steps/s")
         save()
     scaling = []
-    if "scaling" in only:
+    if "scaling" in sections:
         sizes = doc["meta"]["scaling_sizes"]
         # --quick: one size and two (dim, dtype) pairs that still cover both dims and both dtypes
         combos = ((2, "float32"), (3, "float64")) if quick else COMBOS
@@ -423,15 +419,15 @@ def run_bench(args) -> int:
         # at least 5 steps per timed call: at 1e6 particles the target's 1e7 particle-steps is 10 steps
         bench_scaling(sizes, combos, target=1e4 if quick else 1e7, min_steps=5, reps=reps, log=log_row, rows=scaling)
     gradient = []
-    if "gradient" in only:
+    if "gradient" in sections:
         gsteps = [10] if quick else [100, 400, 1600]
         gradient = doc["gradient"] = bench_gradient(
-            gsteps, args.dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log
+            gsteps, dtype, chunk=10 if quick else 50, reps=reps, coarse=quick, log=log
         )
         save()
     batch = None
-    if "batch" in only:
-        batch = doc["batch"] = bench_batch(5 if quick else 400, 16, args.dtype, reps=reps, coarse=quick, log=log)
+    if "batch" in sections:
+        batch = doc["batch"] = bench_batch(5 if quick else 400, 16, dtype, reps=reps, coarse=quick, log=log)
     doc["complete"] = True
     save()
     meta = doc["meta"]
@@ -459,5 +455,5 @@ def run_bench(args) -> int:
             f"{batch['batched_s']:.3f} vs {batch['sequential_s']:.3f} s, sequential/batched = "
             f"{batch['sequential_over_batched']:.2f}"
         )
-    print(f"({meta['backend']}, {meta['cpus']} cpus, jax {meta['jax']}, {args.dtype}); wrote {args.out}")
+    print(f"({meta['backend']}, {meta['cpus']} cpus, jax {meta['jax']}, {dtype}); wrote {out}")
     return 0

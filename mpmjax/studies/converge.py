@@ -50,7 +50,6 @@ import json
 import math
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -58,11 +57,10 @@ import jax
 import numpy as np
 
 from .._build import build
-from .._driver import USAGE_ERROR
 from .._io import _jsonable, atomic_write_text
 from .._metrics import RunoutGauge
 from .._observables import FRONT_FRACTION, gaussian_kernel
-from .._schema import SceneError, load_scene, parse_override, validate
+from .._schema import SceneError, load_scene, validate
 from .._shapes import STENCIL
 from .pareto import compile_final
 
@@ -111,7 +109,8 @@ def _slump_exact(area_m2: float):
     return (1.5 * area_m2 / math.sqrt(k)) ** (2.0 / 3.0), k
 
 
-def _config(case: str, overrides: dict) -> dict:
+def case_config(case: str, overrides: dict) -> dict:
+    """The validated scene of the convergence case ``case`` with the numerics ``overrides`` (key -> value)."""
     scene = CASES[case][0]
     if scene is None:
         raw = slump_scene()
@@ -126,7 +125,7 @@ def run_one(case: str, overrides: dict, npz_path: Path | None = None) -> dict:
     """One run in this process: timings, fronts, profile (and the slump's errors); status."""
     rec: dict = {"status": "ok"}
     try:
-        s = build(_config(case, overrides))
+        s = build(case_config(case, overrides))
     except SceneError as e:
         return {"status": "rejected", "reason": str(e)}
     sc = s.scene
@@ -510,7 +509,7 @@ def run_converge(
             coarsest = CI["coarsest"][case]
             time_ov = {"time.t_end_s": CI["t_end"][case], "time.n_frames": 1}
         hs = [coarsest / 2**i for i in range(n_levels)]
-        cfg0 = _config(case, dict(base or {}))
+        cfg0 = case_config(case, dict(base or {}))
         defaults = {
             "ppc": cfg0["numerics.ppc"],
             "shape": cfg0["numerics.shape"],
@@ -580,76 +579,3 @@ def report(out: Path | str = "converge", log=None) -> dict:
     plot(doc, out / "img" / "converge.png")
     (log or print)(doc["markdown"])
     return doc
-
-
-def add_arguments(p) -> None:
-    p.add_argument("--size", choices=("ci", "full"), default="full", help="ci: tiny (seconds); full: the measurement")
-    p.add_argument("--case", nargs="+", choices=sorted(CASES), default=["lab", "slump", "water"], dest="cases")
-    p.add_argument("--levels", type=int, default=None, help=f"number of cell sizes, halving (default {LEVELS}; ci 3)")
-    p.add_argument("--ppc", nargs="+", type=int, default=[1, 2, 3], help="particles per cell per axis to sweep")
-    p.add_argument("--shapes", nargs="+", choices=SHAPES, default=list(SHAPES), help="shape functions to sweep")
-    p.add_argument("--volume", nargs="+", choices=("none", "jbar"), default=["none", "jbar"], dest="volumes")
-    p.add_argument("--out", default="converge", help="output folder: writes OUT/bench/converge.* and OUT/img/")
-    p.add_argument("--fresh", action="store_true", help="rerun every case (default: reuse finished runs in the JSON)")
-    p.add_argument(
-        "--report-only", action="store_true", help="re-analyse OUT/bench/converge.json as it stands; run nothing"
-    )
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="scene override for every run (e.g. numerics.shape=quadratic_bm: the series then vary around it)",
-    )
-
-
-def cmd_converge(args) -> int:
-    if args.report_only:
-        try:
-            report(args.out)
-        except (OSError, ValueError, KeyError) as e:
-            print(f"mpmjax: error: --report-only: {Path(args.out) / 'bench' / 'converge.json'} cannot be read: {e}", file=sys.stderr)
-            return USAGE_ERROR
-        return 0
-    if args.levels is not None and not 2 <= args.levels <= 6:
-        print(f"mpmjax: error: --levels = {args.levels} is invalid: allowed range 2..6", file=sys.stderr)
-        return USAGE_ERROR
-    bad = [p for p in args.ppc if not 1 <= p <= 4]
-    if bad:
-        print(f"mpmjax: error: --ppc {bad[0]} is invalid: allowed range 1..4", file=sys.stderr)
-        return USAGE_ERROR
-    try:
-        for sub in ("bench", "img"):
-            (Path(args.out) / sub).mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        print(f"mpmjax: error: --out {args.out} is invalid: {e}", file=sys.stderr)
-        return USAGE_ERROR
-    base = {}
-    for item in args.set:
-        key, sep, _ = item.partition("=")
-        if not sep or not key.startswith("numerics."):
-            print(f"mpmjax: error: --set {item} is invalid: allowed: numerics.KEY=VALUE", file=sys.stderr)
-            return USAGE_ERROR
-        key, base[key] = parse_override(item)  # a TOML value, as `run --set` reads it
-    for case in args.cases:
-        try:
-            _config(case, base)
-        except SceneError as e:
-            print(f"mpmjax: error: --set: {e}", file=sys.stderr)
-            return USAGE_ERROR
-    try:
-        run_converge(
-            tuple(args.cases),
-            base=base,
-            size=args.size,
-            out=args.out,
-            levels=args.levels,
-            ppcs=tuple(args.ppc),
-            shapes=tuple(args.shapes),
-            volumes=tuple(args.volumes),
-            fresh=args.fresh,
-        )
-    except KeyboardInterrupt:
-        print("\ninterrupted: the runs finished so far remain in the JSON; rerun to continue", file=sys.stderr)
-        return 130
-    return 0

@@ -43,11 +43,10 @@ import jax
 import numpy as np
 
 from .._build import build
-from .._schema import SceneError, load_scene
-from .._driver import USAGE_ERROR
 from .._io import _jsonable, atomic_write_text
 from .._metrics import surface_profile
 from .._observables import runout
+from .._schema import SceneError, load_scene
 from .._simulate import simulate
 
 SCENE = "dambreak-lab"
@@ -416,26 +415,6 @@ def run_pareto(size: str = "ci", out: Path | str = "docs", fresh: bool = False, 
     log(f"wrote {jpath} and {ppath}")
     return doc
 
-
-def add_arguments(p) -> None:
-    p.add_argument("--size", choices=sorted(SIZES), default="ci", help="ci: tiny (seconds); full: the measurement")
-    p.add_argument("--out", default="pareto", help="output folder: writes OUT/bench/*.json and OUT/img/*.png")
-    p.add_argument("--fresh", action="store_true", help="rerun every case (default: reuse finished runs in the JSON)")
-
-
-def cmd_pareto(args) -> int:
-    for sub in ("bench", "img"):
-        try:
-            (Path(args.out) / sub).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            print(f"mpmjax: --out {args.out} is invalid: cannot create {Path(args.out) / sub}: {e}", file=sys.stderr)
-            return USAGE_ERROR
-    try:
-        run_pareto(args.size, args.out, fresh=args.fresh)
-    except KeyboardInterrupt:
-        print("\ninterrupted: the runs finished so far remain in the JSON", file=sys.stderr)
-        return 130
-    return 0
 
 
 if __name__ == "__main__":  # one isolated run: python -m mpmjax.studies.pareto '{"overrides": ...}'

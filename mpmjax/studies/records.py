@@ -30,17 +30,15 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .._schema import SceneError, load_scene
-from .._driver import FAILED, fail, run_scene
-from .._health import RunFailure
+from .._driver import run_scene
 from .._io import atomic_write_text, read_result
 from .._metrics import beach_slope, surface_profile
+from .._schema import load_scene
 
 # --------------------------------------------------------------------------------------
 # scale study (thesis §5.1, Table 9), as overrides of the built-in scene "scale-study"
@@ -465,33 +463,3 @@ def run_records(names, size: str, out: Path, log=None, progress: bool = False) -
         atomic_write_text(out / "records.md", markdown(doc))
     log(f"wrote {out / 'records.json'} and {out / 'records.md'} ({doc['wall_total_s']:.0f} s)")
     return doc
-
-
-def add_arguments(p):
-    p.add_argument("names", nargs="*", metavar="NAME", help=f"records to run (default all: {', '.join(RECORD_NAMES)})")
-    p.add_argument(
-        "--size",
-        default="full",
-        help="full: each scene's default resolution (slow: the field scenes take minutes to hours); "
-        "ci: coarse, short runs that check the pipeline (figures not comparable with the thesis)",
-    )
-    p.add_argument("--out", default="records", help="output directory (records.json, records.md, one folder per run)")
-
-
-def cmd_records(args) -> int:
-    if args.size not in SCALE_SIZES:
-        return fail(f"--size {args.size!r} is invalid: allowed ci, full")
-    bad = [n for n in args.names if n not in RECORD_NAMES]
-    if bad:
-        return fail(f"record {bad[0]!r} is invalid: allowed {', '.join(RECORD_NAMES)}")
-    try:
-        doc = run_records(
-            args.names, args.size, Path(args.out), log=lambda *a: print(*a, file=sys.stderr), progress=True
-        )
-    except (SceneError, ValueError) as e:
-        return fail(str(e))
-    except RunFailure as e:
-        print(f"\nmpmjax: {e}\nthe records measured before it are in {Path(args.out) / 'records.md'}", file=sys.stderr)
-        return FAILED
-    print(markdown(doc))
-    return 0

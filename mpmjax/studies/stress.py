@@ -55,7 +55,6 @@ import dataclasses
 import json
 import math
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -64,10 +63,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._build import build
-from .._schema import load_scene
-from .._driver import FAILED, Progress, fail
-from .._io import atomic_write_text
 from .._constitutive import TAIT_C
+from .._driver import Progress
+from .._io import atomic_write_text
+from .._schema import load_scene
 from .._step import make_step
 
 ENERGY_TOL = 0.01
@@ -388,38 +387,3 @@ def _doc(size, recs):
         "all_passed": all(r["passed"] for r in recs),
         "cases": recs,
     }
-
-
-def add_arguments(p):
-    p.add_argument(
-        "--size", default="ci", choices=("ci", "full"), help="ci: coarse, about a minute; full: the docs run"
-    )
-    p.add_argument("--case", action="append", choices=CASE_NAMES, help="run only this case (repeatable)")
-    p.add_argument("--out", default="stress.json", help="JSON file to write (rewritten after each case)")
-
-
-def cmd_stress(args) -> int:
-    """Exit 0 when every case passes, 3 (``FAILED``) when one fails a criterion, 2 on invalid
-    input, 130 on interrupt (1 stays for unexpected errors).  At the thesis's kappa = 15 kPa,
-    ``slope-30deg`` and ``drop-1m`` exceed the volume bound (too fast for that kappa), and at
-    ``--size ci`` so do ``alpha-10`` and ``steps-100k`` (their deposit is under 2.2 cells thick);
-    docs/performance.md measures both, so a run of all cases exits 3."""
-    log = lambda *a: print(*a, file=sys.stderr)  # noqa: E731
-    try:
-        recs = run_stress(args.size, args.case, Path(args.out), log)
-    except ValueError as e:
-        return fail(str(e))
-    except KeyboardInterrupt:
-        print(f"\ninterrupted: finished cases remain in {args.out}", file=sys.stderr)
-        return 130
-    print(format_table(recs))
-    print(f"wrote {args.out}")
-    failed = [r["case"] for r in recs if not r["passed"]]
-    if failed:
-        print(
-            f"mpmjax stress: {len(failed)} of {len(recs)} case(s) failed a criterion: {', '.join(failed)} "
-            "(docs/performance.md explains the known ones)",
-            file=sys.stderr,
-        )
-        return FAILED
-    return 0

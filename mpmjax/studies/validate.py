@@ -25,7 +25,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -36,11 +35,10 @@ import numpy as np
 
 from .. import rheometer
 from .._build import build
-from .._driver import FAILED, USAGE_ERROR
 from .._io import _jsonable, atomic_write_text
 from .._metrics import RunoutGauge
 from .._rheology import coussot_mu
-from .._schema import SceneError, load_scene, parse_override, validate
+from .._schema import SceneError, load_scene, validate
 from .._simulate import make_advance
 from .._step import make_step
 from . import converge
@@ -200,7 +198,7 @@ INERTIAL_SIZE = {
 
 
 def _inertial_cfgs(size, base):
-    return [converge._config("slump", {**base, **INERTIAL_SIZE[size]})]
+    return [converge.case_config("slump", {**base, **INERTIAL_SIZE[size]})]
 
 
 def _inertial_run(size, base, rec):
@@ -794,62 +792,3 @@ def run_validate(
     log(doc["markdown"])
     log(f"\nwrote {jpath} and {ppath}")
     return doc
-
-
-def add_arguments(p) -> None:
-    p.add_argument(
-        "--case",
-        nargs="+",
-        choices=list(CASES),
-        default=None,
-        dest="cases",
-        metavar="NAME",
-        help=f"cases to run (default all): {', '.join(CASES)}",
-    )
-    p.add_argument(
-        "--size",
-        choices=("ci", "full"),
-        default="full",
-        help="ci: coarse and short (seconds per case; records errors, claims no pass); full: the measurement",
-    )
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="numerics override for every case, e.g. numerics.pressure=incompressible (repeatable)",
-    )
-    p.add_argument("--out", default="validate", help="output folder: OUT/validate.json and OUT/validate.png")
-    p.add_argument("--fresh", action="store_true", help="rerun every case (default: reuse finished cases in the JSON)")
-
-
-def cmd_validate(args) -> int:
-    base = {}
-    for item in args.set:
-        key, sep, _ = item.partition("=")
-        if not sep or not key.strip().startswith("numerics."):
-            print(
-                f"mpmjax: error: --set {item} is invalid: allowed: numerics.KEY=VALUE (the suite's physics and "
-                "references are fixed)",
-                file=sys.stderr,
-            )
-            return USAGE_ERROR
-        key, base[key] = parse_override(item)  # a TOML value, as `run --set` reads it
-    cases = args.cases or list(CASES)
-    for name in cases:
-        try:
-            CASES[name].cfgs(args.size, base)
-        except SceneError as e:
-            print(f"mpmjax: error: --set (case {name}): {e}", file=sys.stderr)
-            return USAGE_ERROR
-    try:
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        print(f"mpmjax: error: --out {args.out} is invalid: {e}", file=sys.stderr)
-        return USAGE_ERROR
-    try:
-        doc = run_validate(cases, size=args.size, out=args.out, base=base, fresh=args.fresh)
-    except KeyboardInterrupt:
-        print("\ninterrupted: the cases finished so far remain in the JSON; rerun to continue", file=sys.stderr)
-        return 130
-    return FAILED if any(r.get("pass") is False for r in doc["cases"].values()) else 0

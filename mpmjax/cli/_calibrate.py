@@ -1,29 +1,18 @@
-"""Command-line front ends: ``mpmjax calibrate`` and ``mpmjax sweep`` (registered by ``mpmjax.cli``).
-
-The options are parsed here and handed to the library: ``calibration.run.calibrate`` and
-``calibration.sweep``.  Exit status: 0 success, 2 invalid input (the message names the option or
-key, the value and the allowed range), 130 interrupted (what was already written stays), 1 other
-errors.
+"""``mpmjax calibrate``: its options and its handler (``calibration.run.calibrate``); also the
+option parsers and the ``jax.distributed`` options that ``design`` and ``sweep`` share with it.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
+from calibration.multilevel import check_levels
+from calibration.run import MAX_REFINE, SIGMA_UNITS, calibrate
 
-import mpmjax
-
-from .data import DataError
-from .distributed import DistributedError, check_local_devices, is_writer, join, parse_shard
-from .multilevel import check_levels
-from .run import MAX_REFINE, SIGMA_UNITS, calibrate, join_options
-from .sweep import merge_parts, parse_vary, sweep, write_part, write_sweep
-
-USAGE_ERROR = 2
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
 
 
-def _kv(items, what, conv=float):
+def kv(items, what, conv=float) -> dict:
+    """``NAME=VALUE`` options (``--init``, ``--sigma``, ...) as a dict, the values by ``conv``;
+    ValueError naming the option ``what`` and the item."""
     out = {}
     for it in items or []:
         if "=" not in it:
@@ -35,6 +24,11 @@ def _kv(items, what, conv=float):
         except ValueError as e:
             raise ValueError(f"{what} {it!r}: {e}") from None
     return out
+
+
+def names(text) -> list:
+    """A comma-separated list of names (``--fit mu0,alpha``)."""
+    return [s.strip() for s in text.split(",") if s.strip()]
 
 
 def _bounds(text):
@@ -50,7 +44,7 @@ def _transform(text):
     return text
 
 
-def add_distributed_arguments(p: argparse.ArgumentParser):
+def add_distributed_arguments(p) -> None:
     """``--coordinator``, ``--num-processes``, ``--process-id``, ``--distributed``: the same on
     ``sweep`` and ``calibrate`` (``calibration.distributed``; docs/performance.md "Beyond one machine")."""
     g = p.add_argument_group(
@@ -69,13 +63,7 @@ def add_distributed_arguments(p: argparse.ArgumentParser):
     )
 
 
-def _join_options(args):
-    """The validated ``jax.distributed`` options of ``args`` (``run.join_options``)."""
-    return join_options(args.coordinator, args.num_processes, args.process_id, args.distributed,
-                        getattr(args, "devices", None))
-
-
-def add_calibrate_arguments(p: argparse.ArgumentParser):
+def add_calibrate_arguments(p) -> None:
     p.add_argument("data", help="measured profiles: CSV (x_m, h_m [, t_s, sigma_m]) or HDF5; see docs/calibration.md")
     p.add_argument("--scene", default="dambreak-lab", help="built-in scene name or TOML path (default dambreak-lab)")
     p.add_argument("--fit", required=True, help="comma-separated parameters to fit, e.g. mu0,alpha,T,n,lambda0")
@@ -127,7 +115,7 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     _add_level_arguments(p)
 
 
-def _add_measurement_arguments(p: argparse.ArgumentParser):
+def _add_measurement_arguments(p) -> None:
     """The measurements besides the profiles, their noise levels and weights."""
     p.add_argument(
         "--sigma-m", type=float, help="profile standard deviation [m] where the data give none (default 5%% of max h)"
@@ -175,7 +163,7 @@ def _add_measurement_arguments(p: argparse.ArgumentParser):
     )
 
 
-def _add_level_arguments(p: argparse.ArgumentParser):
+def _add_level_arguments(p) -> None:
     """Multi-fidelity levels, the profile likelihood, the output and the distributed options."""
     lv = p.add_mutually_exclusive_group()
     lv.add_argument(
@@ -212,7 +200,6 @@ def _add_level_arguments(p: argparse.ArgumentParser):
     add_distributed_arguments(p)
 
 
-
 def _levels(text):
     """--levels H1,H2,... -> the cell sizes [m], or ValueError naming the option and the text."""
     if text is None:
@@ -223,15 +210,15 @@ def _levels(text):
         raise ValueError(f"{e} (got {text!r})") from None
 
 
-def run_calibrate(args):
-    """``mpmjax calibrate``: the parsed options as a ``calibrate`` call; returns its ``CalibrationResult``."""
-    return calibrate(
+def cmd_calibrate(args) -> int:
+    """``mpmjax calibrate``: the parsed options as a ``calibrate`` call."""
+    calibrate(
         args.data,
-        fit=[s.strip() for s in args.fit.split(",") if s.strip()],
+        fit=names(args.fit),
         scene=args.scene,
-        init=_kv(args.init, "--init"),
-        bounds=_kv(args.bounds, "--bounds", _bounds),
-        transforms=_kv(args.transform, "--transform", _transform),
+        init=kv(args.init, "--init"),
+        bounds=kv(args.bounds, "--bounds", _bounds),
+        transforms=kv(args.transform, "--transform", _transform),
         overrides=args.set,
         method=args.method,
         max_iter=args.max_iter,
@@ -250,8 +237,8 @@ def run_calibrate(args):
         rest_times=args.rest_times,
         lambda_rest=args.lambda_rest,
         transient=args.transient,
-        sigmas=_kv(args.sigma, "--sigma"),
-        weights=_kv(args.weight, "--weight"),
+        sigmas=kv(args.sigma, "--sigma"),
+        weights=kv(args.weight, "--weight"),
         refine=args.refine,
         levels=_levels(args.levels),
         refine_max_iter=args.refine_max_iter,
@@ -266,119 +253,4 @@ def run_calibrate(args):
         process_id=args.process_id,
         distributed=args.distributed,
     )
-
-
-def add_sweep_arguments(p: argparse.ArgumentParser):
-    p.add_argument("scene", nargs="?", default="dambreak-lab", help="built-in scene name or TOML path")
-    p.add_argument(
-        "--vary",
-        action="append",
-        required=True,
-        metavar="NAME=V1,V2,...",
-        help="material parameter and its values [SI], e.g. n=1.5,2,2.5,3; repeat for a grid",
-    )
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scene override, e.g. time.t_end_s=5")
-    p.add_argument("--chunk", type=int, help="cases per vmap batch (default: as many as fit in a quarter of memory)")
-    p.add_argument("--out", default="sweep-out", help="output folder (default sweep-out)")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument(
-        "--devices",
-        type=int,
-        metavar="N",
-        help="on a CPU: make N host devices, one per core, and split the batch over them (default 1; on 2 cores "
-        "a sweep of 16 cases ran 1.3-1.5x faster); the batch always uses every device the process has",
-    )
-    add_distributed_arguments(p)
-    p.add_argument(
-        "--shard",
-        metavar="I/N",
-        help="independent job I of N (e.g. a job array): run the I-th of N shares of the cases and write "
-        "OUT/part-I-of-N.npz; `mpmjax sweep-merge OUT` joins the parts",
-    )
-
-
-def add_sweep_merge_arguments(p: argparse.ArgumentParser):
-    p.add_argument("parts", help="folder of the part-I-of-N.npz files of `mpmjax sweep --shard I/N`")
-    p.add_argument("--out", help="output folder of sweep.csv, sweep.json and the plots (default: the parts' folder)")
-    p.add_argument("--quiet", action="store_true", help="no summary output")
-
-
-def _print_sweep(res, paths, how):
-    names = list(res["vary"])
-    print(
-        " ".join(f"{k:>10s}" for k in names) + f" {'runout [m]':>11s} {'rest [s]':>9s} {'lost':>5s}",
-        file=sys.stderr,
-    )
-    for i, c in enumerate(res["cases"]):
-        print(
-            " ".join(f"{c[k]:10.4g}" for k in names)
-            + f" {res['final_runout_m'][i]:11.4f} {res['time_to_rest_s'][i]:9.3g} {int(res['n_lost'][i]):5d}",
-            file=sys.stderr,
-        )
-    print(f"sweep: {len(res['cases'])} cases {how}; wrote {', '.join(str(p) for p in paths)}", file=sys.stderr)
-
-
-def run_sweep(args) -> dict:
-    options = _join_options(args)
-    shard = parse_shard(args.shard) if args.shard is not None else None
-    if shard is not None and options is not None:
-        raise DistributedError(
-            "--shard and --coordinator / --num-processes / --process-id / --distributed both given; allowed: one "
-            "(--shard: independent jobs merged by `mpmjax sweep-merge`; the others: one jax.distributed job)"
-        )
-    vary = parse_vary(args.vary)
-    join(options)  # before any JAX computation; nothing for a single-process run
-    check_local_devices(args.devices)
-    writer = is_writer()
-    res = sweep(args.scene, vary, overrides=args.set, chunk=args.chunk, progress=not args.quiet, shard=shard)
-    how = (
-        f"in batches of {res['chunk']} on {res['n_devices']} device(s) of {res['n_processes']} process(es), "
-        f"{res['wall_s']:.1f} s"
-    )
-    if shard is not None:
-        path = write_part(res, args.out)
-        if not args.quiet:
-            ci = res["case_index"]
-            share = f"cases {ci[0]} .. {ci[-1]}" if len(ci) else "no case"
-            _print_sweep(res, [path], f"(job {shard[0]} of {shard[1]}: {share} of {res['n_cases']}) {how}")
-        return res
-    if not writer:  # the other processes of a distributed job leave --out to process 0
-        return res
-    paths = write_sweep(res, args.out)
-    if not args.quiet:
-        _print_sweep(res, paths, how)
-    return res
-
-
-def run_sweep_merge(args) -> dict:
-    res = merge_parts(args.parts)
-    paths = write_sweep(res, args.out or args.parts)
-    if not args.quiet:
-        _print_sweep(res, paths, f"from {res['parts']} part(s), {res['wall_s']:.1f} s of wall time in all")
-    return res
-
-
-def _guard(fn, args) -> int:
-    try:
-        fn(args)
-    except (mpmjax.SceneError, DataError, ValueError) as e:
-        print(f"mpmjax: error: {e}", file=sys.stderr)
-        return USAGE_ERROR
-    except KeyboardInterrupt:
-        print(f"\ninterrupted: files already written in {args.out} are kept", file=sys.stderr)
-        return 130
     return 0
-
-
-def cmd_calibrate(args) -> int:
-    return _guard(run_calibrate, args)
-
-
-def cmd_sweep(args) -> int:
-    return _guard(run_sweep, args)
-
-
-def cmd_sweep_merge(args) -> int:
-    if args.out is None:
-        args.out = args.parts
-    return _guard(run_sweep_merge, args)

@@ -1,14 +1,15 @@
-"""``mpmjax design``: rank candidate measurements by the information they add (``calibration.design``).
+"""``run_design``: the whole of ``mpmjax design`` as one Python call: rank candidate measurements
+by the information they add (``calibration.design``), write design.json and design.png.
 
-Candidates come from flags (``--profile-times``, ``--station-spacing-m``, ``--runout-sigma-m``,
-``--shear-rates``, ``--rest-times``, ``--dambreak-rest-times``) and/or a TOML file
-(``--candidates``) whose ``[[candidate]]`` tables have the keys of :data:`CANDIDATE_KEYS`
-(docs/calibration.md, "Experiment design").  Exit status as ``mpmjax calibrate``: 2 for bad input.
+Candidates are tables with the keys of :data:`CANDIDATE_KEYS` (checked by ``check_candidate``),
+from a TOML file of ``[[candidate]]`` tables (``load_candidates``; docs/calibration.md,
+"Experiment design") and/or built by the caller (the command line builds them from its flags,
+``--profile-times``, ``--shear-rates``, ...).  Invalid input raises ``ValueError`` or
+``DataError`` naming the option or entry, the key, the value and the allowed range.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -19,10 +20,16 @@ import numpy as np
 
 import mpmjax
 
-from .cli import _guard, _kv
 from .data import DataError, load_profiles
-from .design import ProfileRequest, design, flow_curve_candidate, plot_design, profile_candidates, rheometer_candidate
-from .design import table_lines
+from .design import (
+    ProfileRequest,
+    design,
+    flow_curve_candidate,
+    plot_design,
+    profile_candidates,
+    rheometer_candidate,
+    table_lines,
+)
 from .experiments import FlowCurveExperiment, ProfileExperiment
 from .params import UNITS, ParameterSet
 from .run import _load_flow_curve, _scene_overrides
@@ -64,7 +71,7 @@ def _number(where, key, v, unit):
     return float(v)
 
 
-def _check_entry(where, kind, entry):
+def check_candidate(where, kind, entry):
     """Validate one candidate table (``where`` names it in messages); returns it with defaults."""
     if kind not in CANDIDATE_KEYS:
         raise ValueError(f"{where}: kind = {kind!r}; allowed: {', '.join(CANDIDATE_KEYS)}")
@@ -128,131 +135,82 @@ def load_candidates(path) -> tuple[list, dict]:
         where = f"{path}: candidate {i}"
         if "kind" not in t:
             raise ValueError(f"{where}: no kind; allowed: {', '.join(CANDIDATE_KEYS)}")
-        out.append(_check_entry(where, t["kind"], t))
+        out.append(check_candidate(where, t["kind"], t))
     settings = {}
     if "prior_factor" in doc:
         settings["prior_factor"] = _number(str(path), "prior_factor", doc["prior_factor"], "-")
     return out, settings
 
 
-def _list(text, flag):
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"{flag} {text!r}: expected comma-separated numbers") from None
-
-
-def candidates_from_flags(args) -> list:
-    """Candidate tables from the command-line flags (checked like the TOML ones)."""
-    out = []
-    spacing = _list(args.station_spacing_m, "--station-spacing-m") if args.station_spacing_m else None
-    if args.profile_times:
-        e = {"times_s": _list(args.profile_times, "--profile-times"), "sigma_m": args.profile_sigma_m}
-        if spacing:
-            e["spacing_m"] = spacing
-        out.append(_check_entry("--profile-times", "profile", {k: v for k, v in e.items() if v is not None}))
-    elif spacing:
-        raise ValueError("--station-spacing-m needs --profile-times (the times of the candidate profiles)")
-    if args.runout_sigma_m is not None:
-        out.append(_check_entry("--runout-sigma-m", "runout", {"sigma_m": args.runout_sigma_m}))
-    rests = _list(args.rest_times, "--rest-times") if args.rest_times else [0.0]
-    if args.shear_rates:
-        for r in _list(args.shear_rates, "--shear-rates"):
-            out.append(_check_entry("--shear-rates", "transient", {
-                "rates_1_s": [r], "rest_s": rests, "t_end_s": args.transient_t_end_s,
-                "n_times": args.transient_points, "sigma_ln": args.sigma_ln}))
-    elif args.rest_times:
-        raise ValueError("--rest-times needs --shear-rates (the rate applied after the rest) [1/s]")
-    if args.dambreak_rest_times:
-        if not args.profile_times:
-            raise ValueError("--dambreak-rest-times needs --profile-times (when the profiles are measured) [s]")
-        e = {"rest_s": _list(args.dambreak_rest_times, "--dambreak-rest-times"),
-             "times_s": _list(args.profile_times, "--profile-times"), "sigma_m": args.profile_sigma_m}
-        if spacing:
-            e["spacing_m"] = spacing
-        out.append(_check_entry("--dambreak-rest-times", "dambreak_after_rest",
-                                {k: v for k, v in e.items() if v is not None}))
-    return out
-
-
-def add_design_arguments(p: argparse.ArgumentParser):
-    p.add_argument("data", help="profiles in hand: CSV (x_m, h_m [, t_s, sigma_m]) or HDF5, as for calibrate")
-    p.add_argument("--scene", default="dambreak-lab", help="built-in scene name or TOML path (default dambreak-lab)")
-    p.add_argument("--fit", help="comma-separated parameters (default: the fitted ones of --estimate)")
-    p.add_argument("--estimate", metavar="FIT_JSON", help="the current estimate: a fit.json of mpmjax calibrate")
-    p.add_argument("--init", action="append", metavar="NAME=VALUE", help="estimate [SI] (overrides --estimate)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scene override, e.g. domain.cell_size_m=0.02")
-    p.add_argument("--sigma-m", type=float, help="noise of the data in hand [m] where they give none")
-    p.add_argument("--bandwidth-m", type=float, help="kernel bandwidth of the model profile [m] (default: cell size)")
-    p.add_argument("--flow-curve", help="rheometer flow-curve points in hand: CSV with gamma_dot_1_s, tau_pa")
-    p.add_argument(
-        "--candidates", metavar="TOML", help="candidate measurements ([[candidate]] tables, docs/calibration.md)"
-    )
-    p.add_argument("--profile-times", metavar="T1,T2", help="candidate profiles at these times [s]")
-    p.add_argument("--station-spacing-m", metavar="S1,S2", help="their station spacing(s) [m] (default 2 cells)")
-    p.add_argument("--profile-sigma-m", type=float, help="their height noise [m] (default: the data's)")
-    p.add_argument("--runout-sigma-m", type=float, help="candidate: the final runout, with this noise [m]")
-    p.add_argument("--shear-rates", metavar="R1,R2", help="candidate rheometer transients, one per rate [1/s]")
-    p.add_argument("--rest-times", metavar="S1,S2", help="shear them after these rests [s] (0: from lambda0)")
-    p.add_argument("--transient-t-end-s", type=float, default=60.0, help="length of each transient [s] (default 60)")
-    p.add_argument("--transient-points", type=int, default=30, help="samples per transient (default 30, log-spaced)")
-    p.add_argument("--sigma-ln", type=float, default=0.05, help="relative noise of rheometer data (default 0.05)")
-    p.add_argument("--dambreak-rest-times", metavar="S1,S2",
-                   help="candidate: the dam break repeated after these rests [s], profiles at --profile-times")
-    p.add_argument(
-        "--prior-factor", type=float, help="prior: each parameter known to this factor at 1 sigma (default 10)"
-    )
-    p.add_argument("--out", default="design-out", help="output folder (default design-out)")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
-
-
-def _estimate(args):
-    """(names, init) from --estimate / --fit / --init."""
-    init = {}
+def load_estimate(estimate=None, fit=None, init=None) -> tuple[list, dict]:
+    """(fitted names, estimate by name) from a fit.json of ``mpmjax calibrate`` (``estimate``), the
+    names ``fit`` (default: the fit.json's fitted ones) and values ``init`` that override it."""
+    values = {}
     fitted = []
-    if args.estimate:
-        path = Path(args.estimate)
+    if estimate:
+        path = Path(estimate)
         try:
             doc = json.loads(path.read_text())
             fitted = list(doc["params"])
-            init.update({k: float(v) for k, v in doc["params"].items()})
-            init.update({k: float(v) for k, v in doc.get("fixed", {}).items()})
+            values.update({k: float(v) for k, v in doc["params"].items()})
+            values.update({k: float(v) for k, v in doc.get("fixed", {}).items()})
         except FileNotFoundError:
             raise DataError(f"--estimate {path}: no such file") from None
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
             raise DataError(f"--estimate {path}: not a fit.json of mpmjax calibrate ({e})") from None
-    init.update(_kv(args.init, "--init"))
-    names = [s.strip() for s in args.fit.split(",") if s.strip()] if args.fit else fitted
+    values.update(init or {})
+    names = list(fit) if fit is not None else fitted
     if not names:
         raise ValueError("--fit: name the parameters (e.g. --fit mu0,alpha,T,n,lambda0) or give --estimate FIT_JSON")
-    return names, init
+    return names, values
 
 
-def run_design(args) -> dict:
-    out = Path(args.out)
-    log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
-    profiles = load_profiles(args.data)
-    names, init = _estimate(args)
-    entries, settings = load_candidates(args.candidates) if args.candidates else ([], {})
-    entries += candidates_from_flags(args)
+def run_design(
+    data,
+    *,
+    scene="dambreak-lab",
+    fit=None,
+    estimate=None,
+    init=None,
+    overrides=None,
+    sigma_m=None,
+    bandwidth_m=None,
+    flow_curve=None,
+    candidates=None,
+    entries=(),
+    prior_factor=None,
+    out="design-out",
+    quiet=False,
+) -> dict:
+    """Rank the candidate measurements of the TOML file ``candidates`` and the checked tables
+    ``entries`` (``check_candidate``) by the information they add to the profiles in ``data`` (and the
+    flow curve ``flow_curve``) at the estimate (``load_estimate(estimate, fit, init)``) on ``scene``
+    with the ``overrides`` (``KEY=VALUE``); writes ``out``/design.json and design.png, prints the
+    table and returns design.json's document.  The arguments are ``mpmjax design``'s options."""
+    out = Path(out)
+    log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
+    profiles = load_profiles(data)
+    names, init = load_estimate(estimate, fit, init)
+    file_entries, settings = load_candidates(candidates) if candidates else ([], {})
+    entries = file_entries + list(entries)
     if not entries:
         raise ValueError("no candidate measurement: give --candidates TOML or --profile-times / --shear-rates / ...")
-    prior = args.prior_factor if args.prior_factor is not None else settings.get("prior_factor", 10.0)
+    prior = prior_factor if prior_factor is not None else settings.get("prior_factor", 10.0)
     times = [p.t_s for p in profiles] + [t for e in entries for t in e.get("times_s") or []]
-    cfg0, overrides = _scene_overrides(args.scene, args.set, times, init)
-    setup = mpmjax.build(mpmjax.load_scene(args.scene, overrides))
+    cfg0, overrides = _scene_overrides(scene, overrides, times, init)
+    setup = mpmjax.build(mpmjax.load_scene(scene, overrides))
     h = setup.scene.h
     pset = ParameterSet.from_names(names, setup.params.material, init=init)
     theta = {k: pset.specs[k].init for k in pset.free}
-    bw = args.bandwidth_m
-    current = [ProfileExperiment(setup, profiles, bandwidth_m=bw, sigma_m=args.sigma_m, name=Path(args.data).name)]
-    if args.flow_curve:
-        current.append(FlowCurveExperiment(setup.params.material, *_load_flow_curve(args.flow_curve),
-                                           name=Path(args.flow_curve).name))
+    bw = bandwidth_m
+    current = [ProfileExperiment(setup, profiles, bandwidth_m=bw, sigma_m=sigma_m, name=Path(data).name)]
+    if flow_curve:
+        current.append(FlowCurveExperiment(setup.params.material, *_load_flow_curve(flow_curve),
+                                           name=Path(flow_curve).name))
     # candidate profile noise: as calibrate's default for the data in hand
     data_sigma = [float(np.median(p.sigma_m)) for p in profiles if p.sigma_m is not None]
     sigma0 = float(np.median(data_sigma)) if data_sigma else (
-        args.sigma_m if args.sigma_m is not None else 0.05 * max(float(np.max(p.h_m)) for p in profiles))
+        sigma_m if sigma_m is not None else 0.05 * max(float(np.max(p.h_m)) for p in profiles))
     mat = setup.params.material
     plain, runout, cands = [], None, []
     for e in entries:
@@ -279,7 +237,7 @@ def run_design(args) -> dict:
         + ", ".join(f"{k} = {v:.4g}" for k, v in theta.items()) + f"; scene {cfg0['name']} at h = {h:g} m")
     res = design(current, pset, theta, cands, prior_factor=prior)
     doc = {**res.as_dict(units={k: UNITS.get(k, "SI") for k in pset.free}), "scene": cfg0["name"],
-           "scene_overrides": overrides, "data": str(args.data), "code_version": mpmjax.__version__}
+           "scene_overrides": overrides, "data": str(data), "code_version": mpmjax.__version__}
     out.mkdir(parents=True, exist_ok=True)
     mpmjax.atomic_write_text(out / "design.json", json.dumps(doc, indent=1))
     plot_design(res, out / "design.png")
@@ -287,7 +245,3 @@ def run_design(args) -> dict:
         print(line)
     log(f"wrote {out / 'design.json'}, {out / 'design.png'}")
     return doc
-
-
-def cmd_design(args) -> int:
-    return _guard(run_design, args)

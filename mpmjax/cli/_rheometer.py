@@ -1,24 +1,18 @@
-"""``mpmjax rheometer``: its options (``add_arguments``) and the run from parsed arguments
-(``run_from_args``), for the Coussot law."""
+"""``mpmjax rheometer``: its options (``add_rheometer_arguments``) and its handler
+(``cmd_rheometer``: the Coussot law at constant shear rates, ``mpmjax.rheometer.write_outputs``)."""
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
-import sys
 
 import jax
 import numpy as np
 
 from .._rheology import BASE_VALUES, Coussot, Param
-from ._files import write_outputs
-from ._physics import _in_range, _range_text, make_params
-
-
-# --------------------------------------------------------------------------------------
-# CLI hooks: `mpmjax rheometer` (the Coussot law)
-# --------------------------------------------------------------------------------------
+from ..rheometer import make_params, write_outputs
+from ..rheometer._physics import _in_range, _range_text
+from ._status import UsageError
 
 # The Coussot parameters the rheometer uses (rho and kappa are carried, not used), each with
 # its option --name (underscores as dashes: --mu-max).
@@ -29,7 +23,7 @@ def _flag(p: Param) -> str:
     return "--" + p.name.replace("_", "-")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_rheometer_arguments(parser) -> None:
     """Add the ``mpmjax rheometer`` options (defaults: thesis BASE lab case)."""
     for p in _CLI_PARAMS:
         parser.add_argument(
@@ -55,10 +49,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="rheometer_out", metavar="DIR", help="output folder (default rheometer_out)")
 
 
-class _BadInput(Exception):
-    pass
-
-
 def _parse_number(option, value):
     """A finite number > 0 from the command line."""
     try:
@@ -66,7 +56,7 @@ def _parse_number(option, value):
     except (TypeError, ValueError):
         x = None
     if x is None or not (math.isfinite(x) and x > 0):
-        raise _BadInput(f"{option}: invalid value {value!r}; allowed range: a finite number > 0")
+        raise UsageError(f"{option}: invalid value {value!r}; allowed range: a finite number > 0")
     return x
 
 
@@ -77,7 +67,7 @@ def _parse_param(p: Param, value):
     except (TypeError, ValueError):
         x = None
     if x is None or not (math.isfinite(x) and bool(_in_range(p, np.asarray(x)))):
-        raise _BadInput(f"{_flag(p)}: invalid value {value!r}; allowed range: a finite number {_range_text(p)}")
+        raise UsageError(f"{_flag(p)}: invalid value {value!r}; allowed range: a finite number {_range_text(p)}")
     return x
 
 
@@ -87,36 +77,29 @@ def _parse_rates(value):
     for item in items:
         try:
             rates.append(_parse_number("--rates", item.strip() if isinstance(item, str) else item))
-        except _BadInput:
-            raise _BadInput(
+        except UsageError:
+            raise UsageError(
                 f"--rates: invalid value {str(value)!r} (item {str(item).strip()!r}); allowed range: "
                 "a comma-separated list of finite numbers > 0 [1/s], e.g. 0.1,1,10,100"
             ) from None
     if not rates:
-        raise _BadInput(f"--rates: invalid value {str(value)!r}; allowed range: at least one rate > 0 [1/s]")
+        raise UsageError(f"--rates: invalid value {str(value)!r}; allowed range: at least one rate > 0 [1/s]")
     return rates
 
 
-def run_from_args(args) -> int:
-    """Run ``mpmjax rheometer``; return 0 on success, 2 on invalid input.
-
-    Invalid input is reported on stderr (option, value, allowed range), without a
-    traceback.  Enables float64 in JAX for this process (the CLI is a one-shot run).
-    """
-    try:
-        vals = {p.name: _parse_param(p, getattr(args, p.name, BASE_VALUES[p.name])) for p in _CLI_PARAMS}
-        if vals["mu_max"] <= vals["mu0"]:
-            raise _BadInput(
-                f"--mu-max: invalid value {vals['mu_max']:g}; allowed range: > --mu0 = {vals['mu0']:g} [Pa s]"
-            )
-        rates = _parse_rates(getattr(args, "rates", "0.1,1,10,100"))
-        t_end = _parse_number("--t-end", getattr(args, "t_end", 1000.0))
-        out = str(getattr(args, "out", "rheometer_out"))
-        if os.path.exists(out) and not os.path.isdir(out):
-            raise _BadInput(f"--out: {out!r} exists and is not a directory")
-    except _BadInput as e:
-        print(f"mpmjax rheometer: error: {e}", file=sys.stderr)
-        return 2
+def cmd_rheometer(args) -> int:
+    """Run ``mpmjax rheometer``: invalid input raises ``UsageError`` (option, value, allowed range)
+    before anything is written.  Enables float64 in JAX for this process (the CLI is a one-shot run)."""
+    vals = {p.name: _parse_param(p, getattr(args, p.name)) for p in _CLI_PARAMS}
+    if vals["mu_max"] <= vals["mu0"]:
+        raise UsageError(
+            f"--mu-max: invalid value {vals['mu_max']:g}; allowed range: > --mu0 = {vals['mu0']:g} [Pa s]"
+        )
+    rates = _parse_rates(args.rates)
+    t_end = _parse_number("--t-end", args.t_end)
+    out = str(args.out)
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise UsageError(f"--out: {out!r} exists and is not a directory")
 
     jax.config.update("jax_enable_x64", True)
     params = make_params(**vals)
@@ -124,8 +107,7 @@ def run_from_args(args) -> int:
     try:
         meta = write_outputs(out, params, rates, t_s)
     except OSError as e:
-        print(f"mpmjax rheometer: error: --out {out!r}: {e}", file=sys.stderr)
-        return 2
+        raise UsageError(f"--out {out!r}: {e}") from None
     crit = meta["critical_point"]
     print(f"wrote {', '.join(meta['files'])} to {out}")
     for s in meta["steady_state"]:
