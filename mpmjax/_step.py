@@ -56,7 +56,7 @@ from ._pressure import make_projection
 from ._scene import Params, Scene, State
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
-from ._transfer import make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
+from ._transfer import _wsum, make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
 EMPTY_NODE_FRACTION = 1e-9
@@ -182,10 +182,10 @@ def make_step(scene: Scene, axis: str | None = None):
             return v_new
 
         v_new = conditions(v_new)
-        p_cell = None
+        p_cell = d_node = None
         if project is not None:
             # numerics.pressure = "incompressible": the pressure solved on the grid (_pressure)
-            v_new, p_cell, _ = project(v_new, mass, inv_m, has, params, state.p[0])
+            v_new, p_cell, d_node, _ = project(v_new, mass, inv_m, has, params, state.p[0], state.t)
             v_new = conditions(v_new)
 
         # G2P: the nodal velocity is formed once, not inside the gather for every stencil node it
@@ -196,6 +196,8 @@ def make_step(scene: Scene, axis: str | None = None):
         v_pic, v_p, C, L = derivative_boundary(g2p(st, v_new, v_old, state.v))
         L = saved(L, VELOCITY_GRADIENT)
         x = state.x + dt * v_pic
+        if d_node is not None:  # the incompressible step's void closure: a displacement only (_pressure)
+            x = x + _wsum(st.w, st.gather(d_node))
 
         # particle-level walls: push back out, remove inward normal velocity.  Column by column over
         # the normal's nonzero components only: a box face touches one column, so the walls' updates
