@@ -371,10 +371,10 @@ def build(cfg: dict) -> Setup:
         cfg["numerics.transfer"] != "apic" or cfg["numerics.shape"] not in ("quadratic", "cubic")
     ):
         raise SceneError(
-            f"numerics.force = \"mls\" is invalid with numerics.transfer = {cfg['numerics.transfer']!r} and "
-            f"numerics.shape = {cfg['numerics.shape']!r}: allowed with transfer = \"apic\" and shape = \"quadratic\" "
-            f"or \"cubic\" (MLS needs APIC's affine matrix and a constant inertia D = h^2/4 or h^2/3), or use "
-            f"numerics.force = \"gradient\""
+            f'numerics.force = "mls" is invalid with numerics.transfer = {cfg["numerics.transfer"]!r} and '
+            f'numerics.shape = {cfg["numerics.shape"]!r}: allowed with transfer = "apic" and shape = "quadratic" '
+            f'or "cubic" (MLS needs APIC\'s affine matrix and a constant inertia D = h^2/4 or h^2/3), or use '
+            f'numerics.force = "gradient"'
         )
     lim = time_step_limits(cfg, params, x, v, rheology)
     t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
@@ -497,7 +497,6 @@ def build(cfg: dict) -> Setup:
             inflow_t_stop_s=inflow.t_stop,
         )
     return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
-
 
 
 # --- warnings at run start (issue 17 item 5) -------------------------------------------------
@@ -623,7 +622,7 @@ def start_warnings(setup: Setup) -> list[str]:
                 f"the viscous limit dt = {info['dt_viscous_s']:.3g} s sets the step (mu_max = "
                 f"{info['mu_max_pa_s']:.4g} Pa s, explicit viscous update)"
             )
-            fix = "set numerics.viscous_update = \"maxwell\" (no viscous limit), lower the law's maximum viscosity, "
+            fix = 'set numerics.viscous_update = "maxwell" (no viscous limit), lower the law\'s maximum viscosity, '
         out.append(
             f"the run needs {sc.n_steps} steps of dt = {sc.dt:.3g} s to time.t_end_s = {t_end:g} s (more than "
             f"{STEPS_WARN:,}): {cause}; estimated run time {_duration(est)} on a CPU ({sc.n_particles} particles): "

@@ -183,7 +183,7 @@ _HEAD: dict[str, Key] = {
         "Devices one run is split over (mpmjax run --devices): the particles are divided among them, and the grid is "
         "shared as numerics.decomposition says. On a CPU these are host devices, one per core. Same results as one "
         "device to float rounding. Not with a pipe inflow yet. "
-        "Measured speed-up: docs/performance.md, \"One simulation across devices\".",
+        'Measured speed-up: docs/performance.md, "One simulation across devices".',
         lo=1,
         hi=1024,
     ),
@@ -196,8 +196,8 @@ _HEAD: dict[str, Key] = {
         "slab plus a halo of 2-3 node planes exchanged with its neighbours; particles move between devices with "
         "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls; it "
         "replaces the whole-grid sum by halo exchange (meant for many GPUs) but does not cut grid memory, and on 2 "
-        "CPU cores it is slower than one device (0.6-0.9x). Measured: docs/performance.md, \"Slabs with halo "
-        "exchange\".",
+        'CPU cores it is slower than one device (0.6-0.9x). Measured: docs/performance.md, "Slabs with halo '
+        'exchange".',
         choices=("replicated", "slab"),
     ),
     "numerics.slab_capacity": Key(
@@ -394,9 +394,7 @@ BODY_KEYS: dict[str, Key] = {
     ),
     "lo_m": Key("vec", _REQ, "m", "box: lower corner."),
     "hi_m": Key("vec", _REQ, "m", "box: upper corner (> lo_m on every axis)."),
-    "base_m": Key(
-        "vec", _REQ, "m", "cylinder, cone: centre of the base, the end face at the low end along the axis."
-    ),
+    "base_m": Key("vec", _REQ, "m", "cylinder, cone: centre of the base, the end face at the low end along the axis."),
     "axis": Key(int, None, "-", "cylinder, cone: the axis (0 x, 1 y, 2 z); default: the vertical (2).", lo=0, hi=2),
     "radius_m": Key(float, _REQ, "m", "cylinder: radius; cone: radius at the base.", lo=0.0, lo_open=True),
     "top_radius_m": Key(
