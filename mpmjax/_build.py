@@ -84,6 +84,13 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         else:
             mesh = _bodies.lattice(cfg, b)
             vol = dx**dim  # the lattice volume (_bodies: boundary cells)
+            if not len(mesh):
+                lo, hi = _bodies.bounds(b, dim)
+                raise SceneError(
+                    f"bodies[{len(earlier)}] ({b['type']}, spanning [{lo.tolist()}, {hi.tolist()}] m) holds no point "
+                    f"of the particle lattice (spacing domain.cell_size_m / numerics.ppc = {dx:g} m): nothing to seed; "
+                    "allowed: a body at least a particle spacing across, or a smaller domain.cell_size_m"
+                )
         keep = np.ones(len(mesh), bool)
         for e in earlier:
             keep &= ~_bodies.contains(e, mesh)

@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import mpmjax as m
 from mpmjax import _bodies, cli
@@ -170,3 +172,44 @@ def test_pairwise_polygon_checks():
     assert _bodies.polygon_self_intersection(np.array([[0, 0], [2, 0], [1, 0], [1, 1]], float)) is not None
     inside = _bodies.polygon_contains(np.array([[0, 0], [1, 0], [0, 1]], float), np.array([[0.2, 0.2], [0.6, 0.6]]))
     assert inside.tolist() == [True, False]
+
+
+_num = st.one_of(
+    st.floats(-0.5, 0.5), st.sampled_from([0.0, -0.0, 1e-300, 1e300, math.inf, math.nan, 2**80]), st.text(max_size=3)
+)
+_vec = st.one_of(st.lists(_num, max_size=4), _num)
+_shaped = st.fixed_dictionaries(
+    {"type": st.sampled_from(["cylinder", "cone", "polygon", "box", 3])},
+    optional={
+        "base_m": _vec,
+        "radius_m": _num,
+        "top_radius_m": _num,
+        "height_m": _num,
+        "axis": st.one_of(st.integers(-2, 4), _num),
+        "vertices_m": st.one_of(st.lists(st.lists(_num, max_size=3), max_size=6), _num),
+        "lo_m": _vec,
+        "hi_m": _vec,
+        "velocity_m_s": _vec,
+    },
+)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(body=_shaped, dim=st.sampled_from([2, 3]))
+def test_property_any_body_is_a_scene_error_or_seeds(body, dim):
+    """Whatever a body table holds, validation and seeding give a SceneError or particles, never
+    another exception."""
+    raw = _scene3(body) if dim == 3 else _scene2(body)
+    try:
+        cfg = m.validate(raw)
+        x, vol, _ = seed_bodies(cfg)
+    except m.SceneError:
+        return
+    assert len(x) > 0 and np.all(np.isfinite(x)) and np.all(vol > 0)
+
+
+def test_a_body_between_lattice_points_is_refused():
+    tiny = {**CYL, "base_m": [0.1, 0.1, 0.0], "radius_m": 0.001}
+    with pytest.raises(m.SceneError) as e:
+        m.build(m.validate(_scene3(tiny, faces=("slip", "slip"))))
+    assert "bodies[0] (cylinder" in str(e.value) and "holds no point of the particle lattice" in str(e.value)
