@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _dem, _release, _rheology, _shapes
+from . import _bodies, _dem, _release, _rheology, _shapes
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -62,25 +62,39 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Regular particle seeding: ``ppc`` per axis per cell.  Returns x (n, dim) [m],
     vol0 (n,) [m^dim] and v (n, dim) [m/s].
 
-    Each body is filled on its own lattice, every particle holding the body's volume / its
-    particle count.  Overlapping bodies are seeded as their union: a particle of a later body
-    that lies inside (or on the surface of) an earlier body is dropped, so overlapping material
-    is not seeded twice (two boxes overlapping by half used to hold 4/3 of their union's mass);
-    where bodies overlap, the earlier body's particles (and velocity) are kept."""
+    A box is filled on its own lattice, every particle holding the box's volume / its
+    particle count.  A shaped body (cylinder, cone, polygon: ``_bodies``) gets the points of the
+    domain's particle lattice inside it, each holding the lattice volume (h / ppc)^dim, so its
+    seeded volume differs from the exact one by the cells its surface cuts (``_bodies``).
+    Overlapping bodies are seeded as their union: a particle of a later body that lies inside
+    (or on the surface of) an earlier body is dropped, so overlapping material is not seeded
+    twice (two boxes overlapping by half used to hold 4/3 of their union's mass); where bodies
+    overlap, the earlier body's particles (and velocity) are kept."""
     dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
     dx = h / ppc
     xs, vols, vs = [np.zeros((0, dim))], [np.zeros(0)], [np.zeros((0, dim))]
-    earlier: list[tuple[np.ndarray, np.ndarray]] = []
+    earlier: list[dict] = []
     for b in cfg["bodies"]:
-        lo, hi = np.asarray(b["lo_m"], float), np.asarray(b["hi_m"], float)
-        counts = np.maximum(np.round((hi - lo) / dx).astype(int), 1)
-        axes = [lo[d] + (np.arange(counts[d]) + 0.5) * (hi[d] - lo[d]) / counts[d] for d in range(dim)]
-        mesh = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
-        vol = np.prod(hi - lo) / len(mesh)  # each body's particles fill it exactly
+        if _bodies.kind(b) == "box":
+            lo, hi = np.asarray(b["lo_m"], float), np.asarray(b["hi_m"], float)
+            counts = np.maximum(np.round((hi - lo) / dx).astype(int), 1)
+            axes = [lo[d] + (np.arange(counts[d]) + 0.5) * (hi[d] - lo[d]) / counts[d] for d in range(dim)]
+            mesh = np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=-1)
+            vol = np.prod(hi - lo) / len(mesh)  # each box's particles fill it exactly
+        else:
+            mesh = _bodies.lattice(cfg, b)
+            vol = dx**dim  # the lattice volume (_bodies: boundary cells)
+            if not len(mesh):
+                lo, hi = _bodies.bounds(b, dim)
+                raise SceneError(
+                    f"bodies[{len(earlier)}] ({b['type']}, spanning [{lo.tolist()}, {hi.tolist()}] m) holds no point "
+                    f"of the particle lattice (spacing domain.cell_size_m / numerics.ppc = {dx:g} m): nothing to seed; "
+                    "allowed: a body at least a particle spacing across, or a smaller domain.cell_size_m"
+                )
         keep = np.ones(len(mesh), bool)
-        for elo, ehi in earlier:
-            keep &= ~np.all((mesh >= elo) & (mesh <= ehi), axis=1)
-        earlier.append((lo, hi))
+        for e in earlier:
+            keep &= ~_bodies.contains(e, mesh)
+        earlier.append(b)
         mesh = mesh[keep]
         xs.append(mesh)
         vols.append(np.full(len(mesh), vol))
@@ -108,8 +122,7 @@ def _add_release(cfg: dict, terrain, x, vol0, v):
     terrain (the domain floor without one); an empty release is an error."""
     floor = float(cfg["domain.lo_m"][-1])
     height = terrain.height if terrain is not None else (lambda xy: np.full(len(xy), floor))
-    boxes = [(b["lo_m"], b["hi_m"]) for b in cfg["bodies"]]
-    xr, vr, info = _release.seed_release(cfg, height, boxes)
+    xr, vr, info = _release.seed_release(cfg, height, cfg["bodies"])
     if not len(xr):
         raise SceneError(
             f"release.pond_level_m = {cfg['release.pond_level_m']} is invalid: it lies below the terrain everywhere "
@@ -280,8 +293,11 @@ def memory_estimate(cfg: dict) -> dict:
     dx = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
     n = 0.0
     for b in cfg["bodies"]:
-        counts = np.maximum(np.round((np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / dx), 1.0)
-        n += float(np.prod(counts))
+        if _bodies.kind(b) == "box":
+            counts = np.maximum(np.round((np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / dx), 1.0)
+            n += float(np.prod(counts))
+        else:
+            n += _bodies.lattice_count_bound(cfg, b)
     if cfg["inflow.point_m"] is not None:
         n += float(inflow_layout(cfg, dim)[2])
     if cfg["release.region_map_m"] is not None:  # about one particle per dx^dim of pond
@@ -362,10 +378,10 @@ def build(cfg: dict) -> Setup:
         cfg["numerics.transfer"] != "apic" or cfg["numerics.shape"] not in ("quadratic", "cubic")
     ):
         raise SceneError(
-            f"numerics.force = \"mls\" is invalid with numerics.transfer = {cfg['numerics.transfer']!r} and "
-            f"numerics.shape = {cfg['numerics.shape']!r}: allowed with transfer = \"apic\" and shape = \"quadratic\" "
-            f"or \"cubic\" (MLS needs APIC's affine matrix and a constant inertia D = h^2/4 or h^2/3), or use "
-            f"numerics.force = \"gradient\""
+            f'numerics.force = "mls" is invalid with numerics.transfer = {cfg["numerics.transfer"]!r} and '
+            f'numerics.shape = {cfg["numerics.shape"]!r}: allowed with transfer = "apic" and shape = "quadratic" '
+            f'or "cubic" (MLS needs APIC\'s affine matrix and a constant inertia D = h^2/4 or h^2/3), or use '
+            f'numerics.force = "gradient"'
         )
     lim = time_step_limits(cfg, params, x, v, rheology)
     t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
@@ -460,7 +476,7 @@ def build(cfg: dict) -> Setup:
     axis = cfg["output.runout_axis"]
     origin_r = cfg["output.runout_origin_m"]
     if math.isnan(origin_r):
-        starts = [b["lo_m"][axis] for b in cfg["bodies"]]
+        starts = [_bodies.start(cfg, b, axis) for b in cfg["bodies"]]
         if release is not None and release["particles"]:
             starts.append(release["back_m"][axis])
         if inflow is not None:
@@ -488,7 +504,6 @@ def build(cfg: dict) -> Setup:
             inflow_t_stop_s=inflow.t_stop,
         )
     return Setup(cfg=cfg, scene=scene, params=params, state=state, info=info)
-
 
 
 # --- warnings at run start (issue 17 item 5) -------------------------------------------------
@@ -536,7 +551,10 @@ def start_warnings(setup: Setup) -> list[str]:
     h, dim = sc.h, sc.dim
     out = []
     for i, b in enumerate(cfg["bodies"]):
-        lo, hi = np.asarray(b["lo_m"], float), np.asarray(b["hi_m"], float)
+        box = _bodies.kind(b) == "box"
+        lo, hi = _bodies.bounds(b, dim)
+        if not box:  # a shaped body cut by a symmetry face
+            lo, hi = np.maximum(lo, sc.lo), np.minimum(hi, sc.hi)
         thin = []
         for a in range(dim):
             cells = (hi[a] - lo[a]) / h
@@ -546,7 +564,11 @@ def start_warnings(setup: Setup) -> list[str]:
         if thin:
             sizes = "; ".join(
                 f"{hi[a] - lo[a]:.4g} m = {(hi[a] - lo[a]) / h:.3g} cells along {'xyz'[a]} "
-                f"(bodies[{i}].lo_m[{a}] = {lo[a]:g}, hi_m[{a}] = {hi[a]:g})"
+                + (
+                    f"(bodies[{i}].lo_m[{a}] = {lo[a]:g}, hi_m[{a}] = {hi[a]:g})"
+                    if box
+                    else f"(from {lo[a]:g} m to {hi[a]:g} m)"
+                )
                 for a in thin
             )
             least = min(hi[a] - lo[a] for a in thin)
@@ -607,7 +629,7 @@ def start_warnings(setup: Setup) -> list[str]:
                 f"the viscous limit dt = {info['dt_viscous_s']:.3g} s sets the step (mu_max = "
                 f"{info['mu_max_pa_s']:.4g} Pa s, explicit viscous update)"
             )
-            fix = "set numerics.viscous_update = \"maxwell\" (no viscous limit), lower the law's maximum viscosity, "
+            fix = 'set numerics.viscous_update = "maxwell" (no viscous limit), lower the law\'s maximum viscosity, '
         out.append(
             f"the run needs {sc.n_steps} steps of dt = {sc.dt:.3g} s to time.t_end_s = {t_end:g} s (more than "
             f"{STEPS_WARN:,}): {cause}; estimated run time {_duration(est)} on a CPU ({sc.n_particles} particles): "

@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from . import _bodies
+
 GEOMETRIC_SUBDIVISION = 8  # sub-columns per axis and particle column of the reference volume
 
 
@@ -94,7 +96,7 @@ def seed_release(cfg: dict, height, bodies=()) -> tuple[np.ndarray, np.ndarray, 
     summary.json reports (volumes, mass, the geometric reference and their difference).
 
     height: z_b [m] at plan positions (m, dim-1) (the terrain's ``height``, or the domain floor);
-    bodies: (lo, hi) boxes of earlier bodies, whose volume the release does not seed again."""
+    bodies: the scene's bodies (``_bodies``), whose volume the release does not seed again."""
     dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
     s = h / ppc
     pond = float(cfg["release.pond_level_m"])
@@ -112,8 +114,8 @@ def seed_release(cfg: dict, height, bodies=()) -> tuple[np.ndarray, np.ndarray, 
     x = np.concatenate([xy[col], z[:, None]], axis=1)
     vol = s ** (dim - 1) * depth[col] / n[col]
     keep = np.ones(len(x), bool)
-    for b_lo, b_hi in bodies:
-        keep &= ~np.all((x >= np.asarray(b_lo)) & (x <= np.asarray(b_hi)), axis=1)
+    for b in bodies:
+        keep &= ~_bodies.contains(b, x)
     x, vol = x[keep], vol[keep]
     v_geo = geometric_volume(cfg, height)
     rho = float(cfg["material.density_kg_m3"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .. import _hazard, _metrics, plotting
+from .. import _hazard, _metrics, _slump, plotting
 from .._io import read_result
 from .._xdmf import write_xdmf
 from .loop import Run
@@ -56,6 +56,8 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
         # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
         summary.update(_metrics.plan_view_summary(res, out / "plan_view.h5"))
         written.insert(3, "plan_view.h5")
+    if cfg["output.slump_test"]:  # slump height, spread and Pashias yield stress: mpmjax._slump, docs/slump-test.md
+        summary["slump_test"] = _slump.summary(res)
     write_summary(out / "summary.json", summary)
     plotting.plot_result(out / "result.png", res, summary, cfg["name"])
     if hazard is not None:
@@ -78,6 +80,15 @@ def _log_closing(log, summary: dict, sc, gauge, deposit_warning: str | None) -> 
         log(
             f"lobe width {summary['lobe_width_m']} m (thickness > {summary['lobe_width_threshold_m']:g} m); "
             f"channels: {'yes, from t = ' + format(ch['first_time_s'], 'g') + ' s' if ch['detected'] else 'no'}"
+        )
+    if "slump_test" in summary:
+        st = summary["slump_test"]
+        back = st["yield_stress_back_calculated_pa"]
+        log(
+            f"slump test: slump {1e3 * st['slump_m']:.1f} mm of {1e3 * st['initial_height_m']:.1f} mm, spread "
+            f"{1e3 * st['spread_diameter_m']:.1f} mm; yield stress back-calculated (Pashias) "
+            + (f"{back:.4g} Pa" if back is not None else "n/a")
+            + (f", input {st['yield_stress_input_pa']:.4g} Pa" if st["yield_stress_input_pa"] is not None else "")
         )
     if deposit_warning is not None:
         log(f"warning: {deposit_warning}")

@@ -183,7 +183,7 @@ _HEAD: dict[str, Key] = {
         "Devices one run is split over (mpmjax run --devices): the particles are divided among them, and the grid is "
         "shared as numerics.decomposition says. On a CPU these are host devices, one per core. Same results as one "
         "device to float rounding. Not with a pipe inflow yet. "
-        "Measured speed-up: docs/performance.md, \"One simulation across devices\".",
+        'Measured speed-up: docs/performance.md, "One simulation across devices".',
         lo=1,
         hi=1024,
     ),
@@ -196,8 +196,8 @@ _HEAD: dict[str, Key] = {
         "slab plus a halo of 2-3 node planes exchanged with its neighbours; particles move between devices with "
         "their slab, rebalanced every 32 steps). Slab: not with a periodic x axis or Navier slip on x walls; it "
         "replaces the whole-grid sum by halo exchange (meant for many GPUs) but does not cut grid memory, and on 2 "
-        "CPU cores it is slower than one device (0.6-0.9x). Measured: docs/performance.md, \"Slabs with halo "
-        "exchange\".",
+        'CPU cores it is slower than one device (0.6-0.9x). Measured: docs/performance.md, "Slabs with halo '
+        'exchange".',
         choices=("replicated", "slab"),
     ),
     "numerics.slab_capacity": Key(
@@ -232,8 +232,11 @@ _TAIL: dict[str, Key] = {
         "table-list",
         [],
         "-",
-        'Material blocks: tables with type = "box", lo_m, hi_m and optional velocity_m_s. At least one body, an '
-        "inflow or a release is required.",
+        "Material bodies: a list of tables ([[bodies]]), each with a type (box, cylinder, cone, polygon) and the "
+        "keys of its type, listed below as bodies[].KEY. At least one body, an inflow or a release is required. "
+        "Shaped bodies are seeded on the domain's particle lattice, each particle inside the shape holding the "
+        "lattice volume (h / ppc)^dim; a shaped body may extend past a symmetry face of the domain only if its "
+        "axis lies on that face (a half or quarter model), and must otherwise lie inside the domain.",
     ),
     "gate.point_m": Key("vec", None, "m", "Aging gate: a point on the plane (optional)."),
     "gate.normal": Key("vec", None, "-", "Aging gate: normal; material ages once (x - point).normal > 0."),
@@ -340,6 +343,14 @@ _TAIL: dict[str, Key] = {
     "output.runout_origin_m": Key(
         float, math.nan, "m", "Origin of runout; default: the back (min) of the material along runout_axis at t = 0."
     ),
+    "output.slump_test": Key(
+        bool,
+        False,
+        "-",
+        "Slump test metrics in summary.json (slump_test: slump height, spread diameter and the yield stress "
+        "back-calculated with the Pashias et al. 1996 relation): needs a 3D scene whose one body is a vertical "
+        "cylinder standing on the domain floor (docs/slump-test.md).",
+    ),
     "output.hazard_maps": Key(
         bool,
         False,
@@ -367,4 +378,46 @@ _TAIL: dict[str, Key] = {
         lo=0.0,
         lo_open=True,
     ),
+}
+
+
+# The keys of one [[bodies]] table (shown as bodies[].KEY in docs/scenes.md); which type takes
+# which key: BODY_TYPES.  Cross-key rules (top radius <= radius, a simple polygon, inside the
+# domain) are checked in validate._validate_bodies.
+BODY_KEYS: dict[str, Key] = {
+    "type": Key(
+        str,
+        "box",
+        "-",
+        "Body shape: box (any dim), cylinder and cone (3D, axis-aligned), polygon (2D).",
+        choices=("box", "cylinder", "cone", "polygon"),
+    ),
+    "lo_m": Key("vec", _REQ, "m", "box: lower corner."),
+    "hi_m": Key("vec", _REQ, "m", "box: upper corner (> lo_m on every axis)."),
+    "base_m": Key("vec", _REQ, "m", "cylinder, cone: centre of the base, the end face at the low end along the axis."),
+    "axis": Key(int, None, "-", "cylinder, cone: the axis (0 x, 1 y, 2 z); default: the vertical (2).", lo=0, hi=2),
+    "radius_m": Key(float, _REQ, "m", "cylinder: radius; cone: radius at the base.", lo=0.0, lo_open=True),
+    "top_radius_m": Key(
+        float,
+        _REQ,
+        "m",
+        "cone: radius at the top (the end at base + height along the axis); 0 is a full cone; at most radius_m.",
+        lo=0.0,
+    ),
+    "height_m": Key(float, _REQ, "m", "cylinder, cone: length along the axis.", lo=0.0, lo_open=True),
+    "vertices_m": Key(
+        "points",
+        _REQ,
+        "m",
+        "polygon: vertices [[x, y], ...] in order (either orientation), at least 3, not self-intersecting.",
+    ),
+    "velocity_m_s": Key("vec", None, "m/s", "Initial velocity of the body; default 0."),
+}
+
+# body type -> (the dimensions it exists in, its keys besides type and velocity_m_s)
+BODY_TYPES: dict[str, tuple[tuple[int, ...], tuple[str, ...]]] = {
+    "box": ((2, 3), ("lo_m", "hi_m")),
+    "cylinder": ((3,), ("base_m", "radius_m", "height_m", "axis")),
+    "cone": ((3,), ("base_m", "radius_m", "top_radius_m", "height_m", "axis")),
+    "polygon": ((2,), ("vertices_m",)),
 }

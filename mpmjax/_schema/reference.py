@@ -4,16 +4,28 @@ from __future__ import annotations
 
 import math
 
-from .keys import _REQ
+from .keys import _REQ, BODY_KEYS, BODY_TYPES
 from .table import SCHEMA
 
 
+def _body_rows():
+    """The keys of a [[bodies]] table, as (bodies[].KEY, spec); required means: for the types that take it."""
+    for sub, spec in BODY_KEYS.items():
+        yield f"bodies[].{sub}", spec
+
+
 def schema_markdown() -> str:
-    """The scene-key reference as a Markdown table (docs/scenes.md is generated from it)."""
+    """The scene-key reference as a Markdown table (docs/scenes.md is generated from it); the keys
+    of a [[bodies]] table follow the ``bodies`` row as ``bodies[].KEY``."""
     rows = ["| key | unit | default | allowed | meaning |", "|---|---|---|---|---|"]
+    items = []
     for key, spec in SCHEMA.items():
+        items.append((key, spec))
+        if key == "bodies":
+            items.extend(_body_rows())
+    for key, spec in items:
         if spec.default is _REQ:
-            default = "required"
+            default = "required" if not key.startswith("bodies[]") else _body_required(key[len("bodies[].") :])
         elif isinstance(spec.default, float) and math.isnan(spec.default):
             default = "(derived)"
         else:
@@ -29,3 +41,8 @@ def schema_markdown() -> str:
             allowed = ", ".join(parts) or "-"
         rows.append(f"| `{key}` | {spec.unit} | {default} | {allowed} | {spec.doc} |")
     return "\n".join(rows)
+
+
+def _body_required(sub: str) -> str:
+    types = [t for t, (_, keys) in BODY_TYPES.items() if sub in keys]
+    return f"required ({', '.join(types)})"

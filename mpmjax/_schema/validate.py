@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from .. import _dem, _release, _rheology
+from .. import _bodies, _dem, _release, _rheology
 from .._boundary import inflow_layout
 from .._scene import WALL_KINDS
-from .keys import _REQ, Key, SceneError
+from .keys import _REQ, BODY_KEYS, BODY_TYPES, Key, SceneError
 from .table import SCHEMA, SECTIONS
 
 
@@ -80,6 +80,21 @@ def _check(key: str, val: Any, spec: Key, dim: int):
     if key == "terrain.heights_m":
         arr = _terrain_array(val, dim, lambda why: bad(why))
         return arr.tolist()
+    if spec.type == "points":  # a polygon's vertices: [[x, y], ...], at least 3
+        ok = isinstance(val, (list, tuple)) and all(
+            isinstance(p, (list, tuple))
+            and len(p) == 2
+            and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in p)
+            for p in val
+        )
+        if not ok:
+            bad("expected a list of [x, y] pairs of numbers")
+        if len(val) < 3:
+            bad(f"a polygon needs at least 3 vertices, got {len(val)}")
+        pts = [[_to_float(a) for a in p] for p in val]
+        if not all(math.isfinite(a) for p in pts for a in p):
+            bad("components must be finite")
+        return pts
     if spec.type == "region":
         why = _release.region_error(_plain(val), dim)
         if why:
@@ -161,12 +176,13 @@ def _check_float32_range(out: dict):
                 check(key, v, spec.lo_open and spec.lo == 0.0)
     for i, b in enumerate(out["bodies"]):
         if isinstance(b, dict):
-            for sub in ("lo_m", "hi_m", "velocity_m_s"):
+            for sub in ("lo_m", "hi_m", "velocity_m_s", "base_m", "radius_m", "top_radius_m", "height_m", "vertices_m"):
                 v = b.get(sub)
-                if isinstance(v, list):
-                    for a in v:
-                        if isinstance(a, (int, float)) and not isinstance(a, bool):
-                            check(f"bodies[{i}].{sub}", _to_float(a), False)
+                flat = v if isinstance(v, list) else [v]
+                flat = [a for p in flat for a in (p if isinstance(p, list) else [p])]
+                for a in flat:
+                    if isinstance(a, (int, float)) and not isinstance(a, bool):
+                        check(f"bodies[{i}].{sub}", _to_float(a), sub in ("radius_m", "height_m") and a != 0)
 
 
 def _usable_normal(nrm) -> bool:
@@ -406,40 +422,151 @@ def _validate_domain(out: dict):
 
 
 def _validate_bodies(out: dict, dim: int, lo, hi, h):
-    """The material bodies: at least one source of material, each a box inside the domain, and a
-    particle count that int32 indices can number."""
+    """The material bodies: at least one source of material, each of a known type with its keys
+    (``BODY_KEYS``, ``BODY_TYPES``) inside the domain, and a particle count that int32 indices can
+    number.  The validated bodies replace ``out["bodies"]`` (numbers as floats; a shaped body's
+    axis filled in); a box keeps exactly the keys it was given."""
     if not out["bodies"] and out["inflow.point_m"] is None and out["release.region_map_m"] is None:
         raise SceneError(
             "bodies = [] is invalid: at least one material body (or an inflow, or a release.region_map_m) is required"
         )
     n_particles = 0
+    faces = [(out[f"boundary.{'xyz'[a]}_lo"], out[f"boundary.{'xyz'[a]}_hi"]) for a in range(dim)]
+    bodies = []
     for i, b in enumerate(out["bodies"]):
-        extra = set(b) - {"type", "lo_m", "hi_m", "velocity_m_s"}
+        btype = b.get("type", "box")
+        if not isinstance(btype, str) or btype not in BODY_TYPES:
+            raise SceneError(
+                f"bodies[{i}].type = {_show(btype)} is invalid: allowed values: {', '.join(BODY_TYPES)} "
+                f"({BODY_KEYS['type'].doc})"
+            )
+        dims, keys = BODY_TYPES[btype]
+        if dim not in dims:
+            raise SceneError(
+                f"bodies[{i}].type = {btype!r} is invalid in a {dim}D scene (domain.dim = {dim}); allowed in "
+                f"{dim}D: {', '.join(t for t, (d, _) in BODY_TYPES.items() if dim in d)}"
+            )
+        allowed = ("type", *keys, "velocity_m_s")
+        extra = set(b) - set(allowed)
         if extra:
             raise SceneError(
-                f"bodies[{i}]: unknown key(s) {sorted(map(str, extra))}; allowed: type, lo_m, hi_m, velocity_m_s"
+                f"bodies[{i}]: unknown key(s) {sorted(map(str, extra))}; allowed"
+                + ("" if btype == "box" else f" for type = {btype!r}")
+                + f": {', '.join(allowed)}"
             )
-        if not isinstance(b.get("type", "box"), str) or b.get("type", "box") != "box":
-            raise SceneError(f"bodies[{i}].type = {_show(b.get('type'))} is invalid: allowed values: box")
-        vspec = Key("vec", None, "m", "body corner")
-        blo = np.asarray(_check(f"bodies[{i}].lo_m", b.get("lo_m"), vspec, dim))
-        bhi = np.asarray(_check(f"bodies[{i}].hi_m", b.get("hi_m"), vspec, dim))
-        _check(
-            f"bodies[{i}].velocity_m_s", b.get("velocity_m_s", [0.0] * dim), Key("vec", None, "m/s", "velocity"), dim
-        )
-        if np.any(bhi <= blo):
-            raise SceneError(f"bodies[{i}]: hi_m = {_plain(bhi)} must exceed lo_m = {_plain(blo)} on every axis")
-        if np.any(blo < lo - 1e-9) or np.any(bhi > hi + 1e-9):
-            raise SceneError(
-                f"bodies[{i}] = [{_plain(blo)}, {_plain(bhi)}] lies outside the domain "
-                f"[domain.lo_m, domain.hi_m] = [{_plain(lo)}, {_plain(hi)}] (m)"
+        if btype == "box":
+            vspec = Key("vec", None, "m", "body corner")
+            blo = np.asarray(_check(f"bodies[{i}].lo_m", b.get("lo_m"), vspec, dim))
+            bhi = np.asarray(_check(f"bodies[{i}].hi_m", b.get("hi_m"), vspec, dim))
+            _check(
+                f"bodies[{i}].velocity_m_s",
+                b.get("velocity_m_s", [0.0] * dim),
+                Key("vec", None, "m/s", "velocity"),
+                dim,
             )
-        n_particles += _body_particle_count(blo, bhi, h / out["numerics.ppc"])
+            if np.any(bhi <= blo):
+                raise SceneError(f"bodies[{i}]: hi_m = {_plain(bhi)} must exceed lo_m = {_plain(blo)} on every axis")
+            if np.any(blo < lo - 1e-9) or np.any(bhi > hi + 1e-9):
+                raise SceneError(
+                    f"bodies[{i}] = [{_plain(blo)}, {_plain(bhi)}] lies outside the domain "
+                    f"[domain.lo_m, domain.hi_m] = [{_plain(lo)}, {_plain(hi)}] (m)"
+                )
+            n_particles += _body_particle_count(blo, bhi, h / out["numerics.ppc"])
+            bodies.append(b)
+            continue
+        body = {"type": btype}
+        for k in (*keys, "velocity_m_s"):
+            spec = BODY_KEYS[k]
+            if k in b:
+                body[k] = _check(f"bodies[{i}].{k}", b[k], spec, dim)
+            elif spec.default is _REQ:
+                raise SceneError(
+                    f"bodies[{i}] (type = {btype!r}) is missing the required key {k} ({spec.doc} Unit: {spec.unit})"
+                )
+        if "axis" in keys:
+            body["axis"] = dim - 1 if body.get("axis") is None else body["axis"]
+        _check_shape(body, i, dim, lo, hi, h, faces)
+        n_particles += _bodies.lattice_count_bound(out, body)
+        bodies.append(body)
+    out["bodies"] = bodies
     if n_particles > _MAX_PARTICLES:
         raise SceneError(
             f"bodies: {n_particles:.4g} particles at numerics.ppc = {out['numerics.ppc']} per cell and "
             f"domain.cell_size_m = {h}; the limit is {_MAX_PARTICLES} (int32 particle indices)"
         )
+
+
+def _check_shape(body: dict, i: int, dim: int, lo, hi, h, faces):
+    """Cross-key checks of a shaped body: a cone's top radius at most its base radius, a simple
+    polygon of non-zero area, and the body inside the domain except across a symmetry face that
+    its axis lies on (a half or quarter model)."""
+    btype = body["type"]
+    if btype == "cone" and body["top_radius_m"] > body["radius_m"]:
+        raise SceneError(
+            f"bodies[{i}].top_radius_m = {_show(body['top_radius_m'])} is invalid: allowed range: >= 0 and <= "
+            f"bodies[{i}].radius_m = {_show(body['radius_m'])} (m; the cone narrows from its base to its top)"
+        )
+    if btype == "polygon":
+        v = np.asarray(body["vertices_m"], float)
+        cross = _bodies.polygon_self_intersection(v)
+        if cross is not None:
+            a, b = cross
+            raise SceneError(
+                f"bodies[{i}].vertices_m = {_show(body['vertices_m'])} is invalid: edges {a} and {b} (counting from "
+                "0, edge k from vertex k to k + 1) touch or cross; allowed: a simple polygon (no edge meets another "
+                "except its two neighbours at their shared vertices)"
+            )
+        if _bodies.polygon_area(v) == 0.0:
+            raise SceneError(
+                f"bodies[{i}].vertices_m = {_show(body['vertices_m'])} is invalid: the polygon has no area"
+            )
+    blo, bhi = _bodies.bounds(body, dim)
+    tol = 1e-6 * h
+    for a in range(dim):
+        for side, past in ((0, blo[a] < lo[a] - tol), (1, bhi[a] > hi[a] + tol)):
+            if not past:
+                continue
+            face = ("lo", "hi")[side]
+            wall = (lo, hi)[side][a]
+            on_face = btype in ("cylinder", "cone") and a != body["axis"] and abs(body["base_m"][a] - wall) <= tol
+            if faces[a][side] == "symmetry" and on_face:
+                continue
+            why = (
+                f"boundary.{'xyz'[a]}_{face} = {faces[a][side]!r} is not a symmetry face"
+                if on_face
+                else "a body may pass a domain face only where it is a symmetry face and the body's axis lies on it"
+            )
+            raise SceneError(
+                f"bodies[{i}] ({btype}, spanning [{_plain(blo)}, {_plain(bhi)}] m) lies outside the domain "
+                f"[domain.lo_m, domain.hi_m] = [{_plain(lo)}, {_plain(hi)}] (m) along {'xyz'[a]}: {why}; allowed: "
+                f"{'xyz'[a]} within [{lo[a]}, {hi[a]}] m"
+            )
+
+
+def _validate_slump(out: dict, dim: int, lo, h):
+    """output.slump_test: one vertical cylinder standing on the domain floor of a 3D scene, under
+    vertical gravity, with no other source of material (docs/slump-test.md)."""
+    if not out["output.slump_test"]:
+        return
+    bodies = out["bodies"]
+    need = (
+        "allowed: a 3D scene (domain.dim = 3) whose one body is a cylinder with a vertical axis (type = 'cylinder', "
+        "axis = 2) standing on the domain floor, no inflow or release, and gravity.slope_deg = "
+        "gravity.transverse_slope_deg = 0"
+    )
+    what = None
+    if dim != 3:
+        what = f"domain.dim = {dim}"
+    elif len(bodies) != 1 or _bodies.kind(bodies[0]) != "cylinder" or bodies[0]["axis"] != 2:
+        what = f"bodies = {_show(bodies)}"
+    elif out["inflow.point_m"] is not None or out["release.region_map_m"] is not None:
+        what = "an inflow or a release.region_map_m is given"
+    elif out["gravity.slope_deg"] != 0.0 or out["gravity.transverse_slope_deg"] != 0.0:
+        what = f"gravity.slope_deg = {out['gravity.slope_deg']}, transverse = {out['gravity.transverse_slope_deg']}"
+    elif abs(bodies[0]["base_m"][2] - lo[2]) > 1e-6 * h:
+        what = f"bodies[0].base_m z = {bodies[0]['base_m'][2]} is not on the floor domain.lo_m z = {lo[2]} m"
+    if what is not None:
+        raise SceneError(f"output.slump_test = true is invalid with {what}; {need}")
 
 
 def _validate_planes_and_gate(out: dict, dim: int):
@@ -527,6 +654,7 @@ def validate(raw: dict) -> dict:
             )
     _validate_material(flat, out)
     _validate_bodies(out, dim, lo, hi, h)
+    _validate_slump(out, dim, lo, h)
     _validate_planes_and_gate(out, dim)
     _validate_inflow(out, dim, lo, hi, h)
     _validate_terrain(out, dim, lo, flat)

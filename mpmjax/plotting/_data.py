@@ -11,7 +11,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _metrics
+from .. import _bodies, _metrics
 from .._io import read_result
 from .._observables import height_profile
 
@@ -56,7 +56,7 @@ def _geometry(res) -> dict:
     if "runout_origin_m" in res["attrs"]:  # the origin build() derived (files from before it: derived here)
         origin = float(res["attrs"]["runout_origin_m"])
     if origin is None or (isinstance(origin, float) and math.isnan(origin)):
-        starts = [b["lo_m"][axis] for b in cfg["bodies"]]
+        starts = [_bodies.start(cfg, b, axis) for b in cfg["bodies"]]
         if cfg.get("inflow.point_m") is not None:
             starts.append(cfg["inflow.point_m"][axis])
         origin = min(starts)
