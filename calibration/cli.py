@@ -15,8 +15,7 @@ import mpmjax
 
 from .data import DataError
 from .distributed import DistributedError, check_local_devices, is_writer, join, parse_shard
-from .multilevel import check_levels
-from .run import MAX_REFINE, SIGMA_UNITS, calibrate, join_options
+from .run import DEFAULT_LEVEL_BUDGET_S, DEFAULT_REFINE, MAX_REFINE, SIGMA_UNITS, calibrate, join_options
 from .sweep import merge_parts, parse_vary, sweep, write_part, write_sweep
 
 USAGE_ERROR = 2
@@ -181,17 +180,24 @@ def _add_level_arguments(p: argparse.ArgumentParser):
     lv.add_argument(
         "--refine",
         type=int,
-        default=0,
         help=f"multi-fidelity: after the fit at the scene's cell size h, continue it at h/2, h/4, ... ({MAX_REFINE} "
-        "at most); the shift between levels is reported as the numerical std (default 0: one level, no numerical std)",
+        f"at most); the shift between levels is reported as the numerical std (default {DEFAULT_REFINE}: two levels; "
+        "0: one level, no numerical std)",
     )
     lv.add_argument(
         "--levels",
-        metavar="H1,H2,...",
-        help="multi-fidelity: the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine)",
+        metavar="N|H1,H2,...",
+        help="multi-fidelity: a number of levels (1: the fast one-level fit, whose resolution bias is not "
+        "estimated) or the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine)",
     )
     p.add_argument(
         "--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)"
+    )
+    p.add_argument(
+        "--level-budget-s",
+        type=float,
+        help="a finer level estimated to take longer than this [s] is announced with its cost before it starts "
+        f"(default {DEFAULT_LEVEL_BUDGET_S:g})",
     )
     p.add_argument(
         "--profile",
@@ -211,16 +217,6 @@ def _add_level_arguments(p: argparse.ArgumentParser):
     p.add_argument("--quiet", action="store_true", help="no progress output")
     add_distributed_arguments(p)
 
-
-
-def _levels(text):
-    """--levels H1,H2,... -> the cell sizes [m], or ValueError naming the option and the text."""
-    if text is None:
-        return None
-    try:
-        return check_levels([v for v in text.split(",") if v.strip()], "--levels")
-    except ValueError as e:
-        raise ValueError(f"{e} (got {text!r})") from None
 
 
 def run_calibrate(args):
@@ -253,8 +249,9 @@ def run_calibrate(args):
         sigmas=_kv(args.sigma, "--sigma"),
         weights=_kv(args.weight, "--weight"),
         refine=args.refine,
-        levels=_levels(args.levels),
+        levels=args.levels,
         refine_max_iter=args.refine_max_iter,
+        level_budget_s=args.level_budget_s,
         profile=args.profile,
         profile_points=args.profile_points,
         profile_width=args.profile_width,

@@ -71,7 +71,9 @@ class FitResult(NamedTuple):
     index; starts: initial values per start; finals: fitted values per start;
     final_losses: final loss per start; gradient: "forward" or "reverse" (how it was computed);
     cpu_s, compile_cpu_s: CPU time of the loop and of the compilation [s] (``time.process_time``,
-    all threads); evaluations: {"value", "value_and_grad"}, model evaluations (one start each).
+    all threads); evaluations: {"value", "value_and_grad"}, model evaluations (one start each);
+    run_s: wall time spent running the compiled model (the rest of ``wall_s`` is compilation and
+    the optimiser's own work) [s].
     """
 
     params: dict
@@ -91,6 +93,7 @@ class FitResult(NamedTuple):
     cpu_s: float = float("nan")
     compile_cpu_s: float = float("nan")
     evaluations: dict | None = None
+    run_s: float = float("nan")
 
 
 # "auto" gradient: forward mode up to this many free parameters (measured break-even ~2.7, see fit())
@@ -570,4 +573,5 @@ def fit(
         cpu_s=time.process_time() - c0,
         compile_cpu_s=obj.compile_cpu_s,
         evaluations=dict(obj.evaluations),
+        run_s=obj.run_s,
     )

@@ -35,9 +35,25 @@ def _level_entries(ml) -> list:
             "cpu_s": lv.result.cpu_s,
             "evaluations": lv.result.evaluations,
             "loss_history": [float(v) for v in lv.result.history.min(axis=1)],
+            "estimate": lv.estimate,
         }
         for lv in ml.levels
     ]
+
+
+# what a one-level fit says about its std, in words (summary, fit.json, fit_profiles.png)
+ONE_LEVEL_NOTE = (
+    "resolution bias NOT ESTIMATED: one level (--levels 1); the std is statistical only and can be many times "
+    "smaller than the grid's error (run the default two levels)"
+)
+
+
+def resolution_bias_text(ml) -> str:
+    """fit.json's ``resolution_bias``: whether and how the grid's bias entered the std."""
+    if ml.numerical is None:
+        return ONE_LEVEL_NOTE
+    hs = " -> ".join(f"{h:g}" for h in ml.numerical.cell_sizes_m)
+    return f"estimated: std_numerical from {len(ml.numerical.cell_sizes_m)} levels (h = {hs} m)"
 
 
 def _experiment_entries(exps, unc) -> list:
@@ -73,6 +89,7 @@ def fit_document(ml, pset, warnings, wall, method, scene_name, overrides, levels
             "the observed order allows, |finest - Richardson extrapolate| (numerical_uncertainty.method); null "
             "with one level"
         ),
+        "resolution_bias": resolution_bias_text(ml),
         "numerical_uncertainty": None if ml.numerical is None else ml.numerical.as_dict(),
         "levels": _level_entries(ml),
         "loss_initial": ml.levels[0].result.loss_initial,
@@ -182,7 +199,9 @@ def summary_lines(doc) -> list:
             f"  {k}: 95 % profile-likelihood interval {lo} .. {hi}, Gauss-Newton {glo} .. {ghi}"
             + ("  DISAGREE (factor > 2)" if p["warning"] else "")
         )
-    if num is not None:
+    if num is None:
+        out.append("  " + ONE_LEVEL_NOTE)
+    else:
         for k, r in num["richardson"].items():
             if r["extrapolated"] is not None:
                 out.append(f"  Richardson: {k} -> {r['extrapolated']:.5g} (h -> 0, observed order {r['order']:.2f})")
@@ -217,7 +236,11 @@ def plot_fit(out, exp, pset, ml, profiles, doc):
     ax.set_xlabel("x [m]")
     ax.set_ylabel("height h [m]")
     hs = " -> ".join(f"{lv.cell_size_m:g}" for lv in ml.levels)
-    ax.set_title(f"fitted at h = {hs} m: value +- total std (statistical, numerical)", fontsize=9)
+    ax.set_title(
+        f"fitted at h = {hs} m: value +- total std (statistical, numerical)" if len(ml.levels) > 1
+        else f"fitted at h = {hs} m (one level): value +- statistical std; resolution bias NOT estimated",
+        fontsize=9,
+    )
     ax.text(
         0.99, 0.97, "\n".join(ln.strip() for ln in summary_lines(doc)), transform=ax.transAxes, ha="right", va="top",
         fontsize=6.5, family="monospace", bbox={"boxstyle": "round", "fc": "white", "alpha": 0.85},
