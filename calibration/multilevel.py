@@ -26,7 +26,14 @@ import mpmjax
 
 from .fit import FitResult, fit
 from .params import ParameterSet
-from .uncertainty import NumericalUncertainty, Uncertainty, combine, gauss_newton, numerical_uncertainty
+from .uncertainty import (
+    NumericalUncertainty,
+    Uncertainty,
+    combine,
+    fixed_parameter_shift,
+    gauss_newton,
+    numerical_uncertainty,
+)
 
 __all__ = [
     "LevelFit",
@@ -207,7 +214,10 @@ def fit_multilevel(
         sc = _scene_of(exps)
         out.append(LevelFit(h, None if sc is None else sc.n_particles, None if sc is None else sc.n_steps, res, est))
     unc = gauss_newton(exps, ps, out[-1].result.params)
-    num = (
-        numerical_uncertainty(hs, {k: [lv.result.params[k] for lv in out] for k in ps.free}) if len(hs) > 1 else None
-    )
+    num = None
+    if len(hs) > 1:
+        # the numerical std at fixed parameters: the last level's residual change at the previous
+        # optimum carried through the Gauss-Newton normal equations (no re-optimisation)
+        linear, _ = fixed_parameter_shift(ps, out[-1].result, exps)
+        num = numerical_uncertainty(hs, {k: [lv.result.params[k] for lv in out] for k in ps.free}, linear=linear)
     return MultilevelResult(out, out[-1].result.params, exps, ps, unc, num, combine(unc, num))

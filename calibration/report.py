@@ -83,11 +83,16 @@ def fit_document(ml, pset, warnings, wall, method, scene_name, overrides, levels
         "std_numerical": comb["std_numerical"],
         "rel_std": comb["rel_std"],
         "poorly_identified": comb["poorly_identified"],
+        "std_numerical_refit": (
+            None if ml.numerical is None or ml.numerical.refit_std is None else dict(ml.numerical.refit_std)
+        ),
         "std_definition": (
             "std = sqrt(std_statistical^2 + std_numerical^2); std_statistical: Gauss-Newton at the finest level; "
-            "std_numerical: |shift| of the fitted value between the last two levels, or with three levels where "
-            "the observed order allows, |finest - Richardson extrapolate| (numerical_uncertainty.method); null "
-            "with one level"
+            "std_numerical: the shift of the optimum between the last two levels at fixed parameters (the fine "
+            "level's residual change at the coarser optimum carried through the Gauss-Newton normal equations, "
+            "method 'linear'), or with three levels where the observed order allows, |finest - Richardson "
+            "extrapolate| (numerical_uncertainty.method); std_numerical_refit: the refitted values' own shift "
+            "(the estimator before issue 32); null with one level"
         ),
         "resolution_bias": resolution_bias_text(ml),
         "numerical_uncertainty": None if ml.numerical is None else ml.numerical.as_dict(),
@@ -185,8 +190,11 @@ def summary_lines(doc) -> list:
         if num is None:
             s += ", numerical not estimated)"
         else:
-            how = {"shift": "shift", "richardson": "Richardson estimate"}[num["method"][k]]
-            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how})"
+            how = {"shift": "shift", "richardson": "Richardson estimate", "linear": "shift at fixed parameters"}[
+                num["method"][k]]
+            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how}"
+            refit = (doc.get("std_numerical_refit") or {}).get(k)
+            s += f"; refit shift {_fmt(refit)})" if num["method"][k] == "linear" and refit is not None else ")"
         if k in doc["poorly_identified"]:
             s += "  POORLY IDENTIFIED"
         out.append(s)

@@ -375,6 +375,17 @@ def _warnings(ml) -> list:
             "only and misses the grid's resolution bias, which can be many times larger (rerun without --levels 1: "
             "the default fits two levels)"
         )
+    num = ml.numerical
+    if num is not None and num.refit_std is not None:
+        for k in num.values:
+            lin, refit, stat = num.std[k], num.refit_std[k], comb["std_statistical"][k] or 0.0
+            if num.method[k] == "linear" and refit > 3 * lin and refit > 2 * stat:
+                warnings.append(
+                    f"{k}: the refit moved it by {refit:.3g} between the last two levels, {refit / max(lin, 1e-300):.3g}x "
+                    f"the shift at fixed parameters ({lin:.3g}): the finer level's fit went along a flat valley or to "
+                    "another optimum (the optimiser's path, not only the grid); the value is the refit's, its "
+                    "numerical std the fixed-parameter one (std_numerical_refit keeps the other)"
+                )
     for lv in ml.levels:
         if lv.estimate is not None and lv.estimate.get("over_budget"):
             warnings.append(lv.estimate["message"])
