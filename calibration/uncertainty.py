@@ -51,7 +51,8 @@ std = sqrt(std_statistical^2 + std_numerical^2).
   equations, dz = -(J_f^T J_f)^+ J_f^T R_f: the shift of the optimum that the change of the
   residuals between the grids implies to first order, with no re-optimisation, so that a refit
   which wanders along a flat valley or jumps to another basin does not inflate it.
-  std_numerical = |theta(z_c + dz) - theta_c| (``linear``); the refit's own shift stays reported
+  std_numerical = |(dtheta/dz) dz| (``linear``; the Gauss-Newton step in the parameters
+  themselves, the same whatever the transform); the refit's own shift stays reported
   (``refit_std``) and the fitted value stays the refit's.  With three or more levels the
   Richardson estimate (above) is used where it applies, else the fixed-parameter one.
 
@@ -333,10 +334,11 @@ class NumericalUncertainty(NamedTuple):
 
 
 FIXED_PARAMETER_DEFINITION = (
-    "fixed_parameters: |theta(z_c + dz) - theta_c| with dz = -(J_f^T J_f)^+ J_f^T R_f, the fine level's residuals "
-    "R_f and Jacobian J_f (in the fit's transformed z) at the coarser level's optimum theta_c, carried through "
-    "the Gauss-Newton normal equations (no re-optimisation); refit: |theta_L - theta_(L-1)| of the refitted "
-    "values (or the Richardson estimate with three levels); shift_nonlinear = shift_refit - shift_linear"
+    "fixed_parameters: |dtheta| with dtheta = (dtheta/dz) dz, dz = -(J_f^T J_f)^+ J_f^T R_f, the fine level's "
+    "residuals R_f and Jacobian J_f (in the fit's transformed z) at the coarser level's optimum theta_c, carried "
+    "through the Gauss-Newton normal equations (no re-optimisation; the same step as in the parameters "
+    "themselves); refit: |theta_L - theta_(L-1)| of the refitted values (or the Richardson estimate with three "
+    "levels); shift_nonlinear = shift_refit - shift_linear"
 )
 
 
@@ -433,8 +435,11 @@ def fixed_parameter_shift(pset, result, experiments, dtype=None) -> tuple:
     if rj is not None:
         R, J = rj
         dz = gauss_newton_step(R, J)
-        th1 = {k: float(v) for k, v in pset.theta(jnp.asarray(z0 + dz, dt)).items()}
-        return {k: th1[k] - th0[k] for k in names}, "lm"
+        # the step in the parameters themselves: dtheta = (dtheta/dz) dz, which is the Gauss-Newton
+        # step of the residuals as functions of theta (J_theta = J_z (dtheta/dz)^-1), whatever the
+        # transform; mapping z0 + dz through the transform instead would saturate at a bound
+        D = np.diag(np.asarray(jax.jacfwd(pset.theta_vector)(jnp.asarray(z0, dt)), float))
+        return {k: float(D[i] * dz[i]) for i, k in enumerate(names)}, "lm"
     thv, rs, Js, _ = information_terms(experiments, pset, th0)
     R = np.concatenate([np.sqrt(e.weight / r.size) * r.ravel() for e, r in zip(experiments, rs, strict=True)])
     J = np.concatenate(

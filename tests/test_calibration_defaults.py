@@ -107,11 +107,12 @@ def test_fixed_parameter_shift_is_the_refit_shift_to_first_order_and_ignores_the
     iterations: bit-identical, it is computed from the fine level's first evaluation, so a refit
     that wanders cannot inflate it), while the refit's own shift does; (b) for a small change of
     the residuals (delta = 1 %) it equals the converged refit's shift to first order: measured
-    +0.0891 against +0.0890 Pa s for mu0 (0.01 %) and -0.00979 against -0.00979 for n (0.06 %; the
-    second-order terms are O(delta) relative to the shift), asserted within 5 %; (c) without
-    Levenberg-Marquardt's residuals (method lbfgs) the same step is computed in the parameters
-    themselves from one forward-mode Jacobian: equal to first order (the transforms differ:
-    log-sigmoid z against SI), measured 1.1 % (mu0) and 0.1 % (n) apart, asserted within 5 %."""
+    +0.0881 against +0.0890 Pa s for mu0 (1.1 %) and -0.009796 against -0.009792 for n (0.04 %; the
+    second-order terms are O(delta) relative to the shift), asserted within 5 %; (c) the step is
+    the Gauss-Newton step in the parameters themselves, whatever the transform: without
+    Levenberg-Marquardt's residuals (method lbfgs) it is computed in SI from one forward-mode
+    Jacobian, and agrees to 1e-6 (mu0) and 3e-6 (n), the difference of the two methods' coarse
+    optima; asserted to 1e-4."""
     from calibration.multilevel import fit_multilevel
 
     make, ps = _flow_curve_levels(0.01)
@@ -126,7 +127,8 @@ def test_fixed_parameter_shift_is_the_refit_shift_to_first_order_and_ignores_the
         assert full.numerical.std[k] == abs(lin) and full.numerical.refit_std[k] == pytest.approx(abs(refit))
         assert abs(lin) > 1e-3 * full.params[k]  # the perturbation moves both parameters
         assert lin == pytest.approx(refit, rel=0.05), (k, lin, refit)  # (b)
-        assert lb.numerical.linear[k] == pytest.approx(lin, rel=0.05), (k, lb.numerical.linear[k], lin)  # (c)
+        assert lb.numerical.linear[k] == pytest.approx(lin, rel=1e-4), (k, lb.numerical.linear[k], lin)  # (c)
     doc = full.numerical.as_dict()
     assert set(doc["estimators"]) == {"fixed_parameters", "refit", "definition"}
     assert doc["shift_nonlinear"]["mu0"] == pytest.approx(doc["shift_refit"]["mu0"] - doc["shift_linear"]["mu0"])
+
