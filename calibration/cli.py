@@ -15,6 +15,7 @@ import mpmjax
 
 from .data import DataError
 from .distributed import DistributedError, check_local_devices, is_writer, join, parse_shard
+from .fit import DEFAULT_STARTS, MULTISTART_MIN_PARAMS
 from .run import DEFAULT_LEVEL_BUDGET_S, DEFAULT_REFINE, MAX_REFINE, SIGMA_UNITS, calibrate, join_options
 from .sweep import merge_parts, parse_vary, sweep, write_part, write_sweep
 
@@ -111,8 +112,9 @@ def add_calibrate_arguments(p: argparse.ArgumentParser):
     p.add_argument(
         "--starts",
         type=int,
-        default=1,
-        help="multi-start: number of starts, stepped in lockstep with one compiled model (default 1)",
+        help="multi-start: number of starts, stepped in lockstep with one compiled model (default "
+        f"{DEFAULT_STARTS} for {MULTISTART_MIN_PARAMS} or more free parameters, else 1); fit.json lists every "
+        "distinct optimum",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the extra starts")
     p.add_argument(

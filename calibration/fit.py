@@ -55,7 +55,30 @@ import mpmjax
 
 from .experiments import joint_loss, joint_residuals
 
-__all__ = ["FitResult", "Objective", "fit", "forward_mode_gradient", "loss_function"]
+__all__ = [
+    "DEFAULT_STARTS",
+    "MULTISTART_MIN_PARAMS",
+    "FitResult",
+    "Objective",
+    "default_starts",
+    "fit",
+    "forward_mode_gradient",
+    "loss_function",
+]
+
+# multi-start by default (issue 32): from this many free parameters on, ``calibrate`` runs
+# DEFAULT_STARTS starts (the first at the initial values, the others a random factor e^{N(0, ln 2)}
+# away) in lockstep at the first level, and reports every distinct optimum
+# (``calibration.optima``): with three or more parameters the loss has had more than one basin
+# (issue 32: lambda0 at 0.06 and at 1.33 in a five-parameter fit).
+MULTISTART_MIN_PARAMS = 3
+DEFAULT_STARTS = 4
+
+
+def default_starts(n_free: int) -> int:
+    """The number of starts ``calibrate`` runs when not told: DEFAULT_STARTS for
+    MULTISTART_MIN_PARAMS or more free parameters, else 1."""
+    return DEFAULT_STARTS if n_free >= MULTISTART_MIN_PARAMS else 1
 
 
 class FitResult(NamedTuple):

@@ -25,6 +25,7 @@ from typing import Any, NamedTuple
 import mpmjax
 
 from .fit import FitResult, fit
+from .optima import distinct_optima
 from .params import ParameterSet
 from .uncertainty import (
     NumericalUncertainty,
@@ -62,7 +63,8 @@ class MultilevelResult(NamedTuple):
     experiments / pset: the finest level's (pset starts at the previous level's values);
     uncertainty: Gauss-Newton at the finest level; numerical: the discretisation uncertainty
     (None with one level); combined: ``calibration.uncertainty.combine`` (std_statistical,
-    std_numerical, std, rel_std, poorly_identified)."""
+    std_numerical, std, rel_std, poorly_identified); optima: the distinct optima of level 0's
+    starts (``calibration.optima.distinct_optima``; None with one start)."""
 
     levels: list
     params: dict
@@ -71,6 +73,7 @@ class MultilevelResult(NamedTuple):
     uncertainty: Uncertainty
     numerical: NumericalUncertainty | None
     combined: dict
+    optima: dict | None = None
 
     @property
     def result(self) -> FitResult:
@@ -191,7 +194,7 @@ def fit_multilevel(
     hs = check_levels(levels)
     refine_max_iter = max_iter if refine_max_iter is None else refine_max_iter
     cb = _default_progress() if progress is True else (progress or None)
-    out, ps, exps = [], pset, None
+    out, ps, exps, optima = [], pset, None, None
     for i, h in enumerate(hs):
         exps = make_experiments(h)
         if on_level is not None:
@@ -211,6 +214,8 @@ def fit_multilevel(
             progress=prog,
             **fit_kwargs,
         )
+        if i == 0 and len(res.finals) > 1:
+            optima = distinct_optima(res, exps, ps)
         sc = _scene_of(exps)
         out.append(LevelFit(h, None if sc is None else sc.n_particles, None if sc is None else sc.n_steps, res, est))
     unc = gauss_newton(exps, ps, out[-1].result.params)
@@ -220,4 +225,4 @@ def fit_multilevel(
         # optimum carried through the Gauss-Newton normal equations (no re-optimisation)
         linear, _ = fixed_parameter_shift(ps, out[-1].result, exps)
         num = numerical_uncertainty(hs, {k: [lv.result.params[k] for lv in out] for k in ps.free}, linear=linear)
-    return MultilevelResult(out, out[-1].result.params, exps, ps, unc, num, combine(unc, num))
+    return MultilevelResult(out, out[-1].result.params, exps, ps, unc, num, combine(unc, num), optima)

@@ -118,6 +118,7 @@ def fit_document(ml, pset, warnings, wall, method, scene_name, overrides, levels
         "finals": ml.levels[0].result.finals,
         "final_losses": [float(v) for v in ml.levels[0].result.final_losses],
         "best_start": ml.levels[0].result.best_start,
+        "optima": ml.optima,
         "compile_s": res.compile_s,
         "n_processes": jax.process_count(),
         "n_devices": jax.device_count(),
@@ -207,6 +208,18 @@ def summary_lines(doc) -> list:
             f"  {k}: 95 % profile-likelihood interval {lo} .. {hi}, Gauss-Newton {glo} .. {ghi}"
             + ("  DISAGREE (factor > 2)" if p["warning"] else "")
         )
+    opt = doc.get("optima")
+    if opt is not None:
+        n_opt = len(opt["optima"])
+        word = "optima" if n_opt > 1 else "optimum"
+        out.append(f"  {opt['n_starts']} starts, {n_opt} distinct {word} at the first level:")
+        for o in opt["optima"]:
+            vals = ", ".join(f"{k} = {v:.4g}" for k, v in o["params"].items())
+            extra = (
+                "" if o["chi2_above_best"] is None
+                else f", chi2 +{o['chi2_above_best']:.3g}, d2 {o['d2_from_best']:.3g}"
+            )
+            out.append(f"    loss {o['loss']:.5g} (starts {', '.join(map(str, o['starts']))}{extra}): {vals}")
     if num is None:
         out.append("  " + ONE_LEVEL_NOTE)
     else:

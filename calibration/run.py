@@ -33,6 +33,7 @@ from .experiments import (
     ShearHistoryExperiment,
     frames_for,
 )
+from .fit import default_starts
 from .multilevel import MultilevelResult, check_levels, experiments_at_cell_size, fit_multilevel
 from .params import ParameterSet
 from .profile import check_profile_options, profile_likelihood
@@ -375,16 +376,19 @@ def _warnings(ml) -> list:
             "only and misses the grid's resolution bias, which can be many times larger (rerun without --levels 1: "
             "the default fits two levels)"
         )
+    if ml.optima is not None:
+        warnings += ml.optima["warnings"]
     num = ml.numerical
     if num is not None and num.refit_std is not None:
         for k in num.values:
             lin, refit, stat = num.std[k], num.refit_std[k], comb["std_statistical"][k] or 0.0
             if num.method[k] == "linear" and refit > 3 * lin and refit > 2 * stat:
                 warnings.append(
-                    f"{k}: the refit moved it by {refit:.3g} between the last two levels, {refit / max(lin, 1e-300):.3g}x "
-                    f"the shift at fixed parameters ({lin:.3g}): the finer level's fit went along a flat valley or to "
-                    "another optimum (the optimiser's path, not only the grid); the value is the refit's, its "
-                    "numerical std the fixed-parameter one (std_numerical_refit keeps the other)"
+                    f"{k}: the refit moved it by {refit:.3g} between the last two levels, "
+                    f"{refit / max(lin, 1e-300):.3g}x the shift at fixed parameters ({lin:.3g}): the finer level's "
+                    "fit went along a flat valley or to another optimum (the optimiser's path, not only the grid); "
+                    "the value is the refit's, its numerical std the fixed-parameter one (std_numerical_refit keeps "
+                    "the other)"
                 )
     for lv in ml.levels:
         if lv.estimate is not None and lv.estimate.get("over_budget"):
@@ -454,7 +458,7 @@ def calibrate(
     learning_rate: float = 0.05,
     rtol: float = 1e-4,
     patience: int = 5,
-    starts: int = 1,
+    starts: int | None = None,
     seed: int = 0,
     gradient: str = "auto",
     sigma_m: float | None = None,
@@ -495,7 +499,11 @@ def calibrate(
     that the bias is not estimated), ``levels=N`` N levels, ``levels=[h1, h2, ...]`` (or the text
     "h1,h2") the cell sizes, ``refine=K`` K halvings.  ``level_budget_s`` (default
     ``DEFAULT_LEVEL_BUDGET_S``): a finer level estimated to take longer is announced, with its
-    estimated cost, before it starts (and the warning is kept in fit.json); the fit goes on."""
+    estimated cost, before it starts (and the warning is kept in fit.json); the fit goes on.
+
+    Starts: ``starts=None`` (the default) runs ``calibration.fit.default_starts``: 4 starts for
+    three or more free parameters, else 1; fit.json's ``optima`` lists every distinct optimum
+    and its loss, with a warning where two within the noise level disagree."""
     out = Path(out)
     join(join_options(coordinator, num_processes, process_id, distributed))  # before any JAX computation
     writer = is_writer()  # only process 0 writes --out and prints progress
@@ -518,6 +526,7 @@ def calibrate(
     pset = ParameterSet.from_names(
         names, setup.params.material, init=init, bounds=dict(bounds or {}), transforms=dict(transforms or {})
     )
+    starts = default_starts(len(pset.free)) if starts is None else starts
     # the observable is the same at every level: bandwidth and runout sigma fixed in metres
     bandwidth_m = bandwidth_m if bandwidth_m is not None else levels[0]
     runout_sigma_m = runout_sigma_m if runout_sigma_m is not None else 2 * levels[0]

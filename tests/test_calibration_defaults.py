@@ -42,6 +42,7 @@ def test_default_is_two_levels_and_the_fine_levels_cost_is_announced_before_it_s
     doc = json.loads((tmp_path / "o" / "fit.json").read_text())
     assert r.levels == [0.06, 0.03] and [lv["cell_size_m"] for lv in doc["levels"]] == [0.06, 0.03]
     assert doc["resolution_bias"].startswith("estimated") and doc["std_numerical"]["mu0"] is not None
+    assert len(doc["starts"]) == 1 and doc["optima"] is None  # one free parameter: one start
     c, f = doc["levels"]
     est = f["estimate"]
     assert c["estimate"] is None
@@ -132,3 +133,85 @@ def test_fixed_parameter_shift_is_the_refit_shift_to_first_order_and_ignores_the
     assert set(doc["estimators"]) == {"fixed_parameters", "refit", "definition"}
     assert doc["shift_nonlinear"]["mu0"] == pytest.approx(doc["shift_refit"]["mu0"] - doc["shift_linear"]["mu0"])
 
+
+# ------------------------------------------------------------ item 3: multi-start by default
+class _TwoBasins:
+    """A made-up experiment with two optima in a: ((ln a)^2 - 1) / sigma at 10 points and
+    eps (ln a - 1) / sigma at 10 more (all zero at a = e; with eps = 0 also at a = 1/e, else about
+    2 eps / sigma at the second ten there), plus (b x - d) / sigma at 20 points with
+    d = 2 x + sigma N(0, 1) (seeded): b is pinned near 2."""
+
+    sigma_known, weight, name, n_residuals = True, 1.0, "two-basins", 40
+
+    def __init__(self, eps):
+        import jax.numpy as jnp
+
+        self.eps = eps
+        self.x = jnp.linspace(0.1, 1.0, 20)
+        self.d = 2.0 * self.x + 0.01 * jnp.asarray(np.random.default_rng(1).standard_normal(20))
+
+    def residuals(self, v):
+        import jax.numpy as jnp
+
+        la = jnp.log(v["a"])
+        ra = jnp.concatenate([jnp.full(10, la**2 - 1.0), jnp.full(10, self.eps * (la - 1.0))]) / 0.01
+        return jnp.concatenate([ra, (v["b"] * self.x - self.d) / 0.01])
+
+
+@pytest.mark.parametrize("eps, warned", [(0.0, True), (0.05, False)])
+def test_distinct_optima_are_reported_and_a_tie_within_the_noise_is_warned(eps, warned):
+    """Three starts (a = 0.5, 2, 3) end in the two basins a = 1/e and a = e; the two starting
+    above 1 are one optimum (their ends lie within d^2 < 1 of each other in the Fisher metric).
+    eps = 0: the two optima fit equally well (chi^2 equal to rounding, far below chi2_2(0.95) =
+    5.99; measured 0.0) but lie d^2 = 1.5e6 apart: the data cannot tell them apart although the Gauss-Newton std
+    of either says they can, so a warning.  eps = 0.05: the optimum near 1/e is about
+    2 eps / sigma = 10 per point worse at 10 points (chi^2 about 1000 above the best, less the
+    little the optimum's shift recovers; measured 999.4): distinct, reported, no warning."""
+    import jax.numpy as jnp
+
+    from calibration.fit import fit
+    from calibration.optima import distinct_optima
+    from calibration.params import ParameterSet
+
+    import typing
+
+    Mat = typing.NamedTuple("Mat", [("a", float), ("b", float)])
+    ps = ParameterSet.from_names(["a", "b"], Mat(jnp.float64(1.0), jnp.float64(1.0)),
+                                 bounds={"a": (0.01, 100), "b": (0.01, 100)})
+    exp = _TwoBasins(eps)
+    zs = np.stack([np.asarray(ps.z_of_theta({"a": a, "b": 1.0})) for a in (0.5, 2.0, 3.0)])
+    r = fit([exp], ps, max_iter=100, rtol=1e-12, progress=False, z_starts=zs)
+    opt = distinct_optima(r, [exp], ps)
+    assert [o["starts"] for o in opt["optima"]] in ([[0], [1, 2]], [[1, 2], [0]]), opt["optima"]
+    ends = {round(float(np.log(o["params"]["a"]))): o for o in opt["optima"]}
+    assert set(ends) == {-1, 1}
+    assert ends[1]["params"]["a"] == pytest.approx(np.e, rel=1e-4)
+    assert opt["optima"][0]["chi2_above_best"] == 0.0 and opt["optima"][1]["d2_from_best"] > 1e4
+    assert opt["threshold_chi2"] == pytest.approx(5.991, abs=1e-3)
+    if warned:
+        assert abs(opt["optima"][1]["chi2_above_best"]) < 1e-6
+        assert len(opt["warnings"]) == 1 and "two optima within the noise level disagree" in opt["warnings"][0]
+    else:
+        assert opt["optima"][1]["chi2_above_best"] > 500 and not opt["warnings"]
+
+
+def test_three_parameters_get_four_starts_by_default_and_every_optimum_is_reported(tmp_path):
+    """``calibrate`` with three free parameters and no ``starts`` runs DEFAULT_STARTS = 4 starts at
+    the first level (one compiled model, in lockstep) and fit.json's ``optima`` holds every end
+    point in exactly one optimum, best first, the best being the first level's fit.  CI size:
+    the wedge at h = 0.06 m, one level, 2 iterations (the optima's grouping, not their physics)."""
+    from calibration.fit import DEFAULT_STARTS, MULTISTART_MIN_PARAMS, default_starts
+    from calibration.run import calibrate
+
+    assert (MULTISTART_MIN_PARAMS, DEFAULT_STARTS) == (3, 4)
+    assert [default_starts(k) for k in (1, 2, 3, 5)] == [1, 1, 4, 4]
+    r = calibrate(_wedge(tmp_path), scene=TWIN, overrides=SMALL, fit=["mu0", "n", "lambda0"],
+                  init={"mu0": 6.0, "n": 2.5, "lambda0": 1.5}, bandwidth_m=0.06, max_iter=2, levels=1,
+                  out=tmp_path / "o", quiet=True)
+    doc = json.loads((tmp_path / "o" / "fit.json").read_text())
+    opt = doc["optima"]
+    assert len(doc["starts"]) == 4 and opt["n_starts"] == 4 and opt["compared_with_noise"]
+    assert sorted(k for o in opt["optima"] for k in o["starts"]) == [0, 1, 2, 3]
+    losses = [o["loss"] for o in opt["optima"]]
+    assert losses == sorted(losses) and losses[0] == pytest.approx(r.loss_final)
+    assert opt["optima"][0]["params"] == pytest.approx(r.params)
