@@ -4,6 +4,7 @@ for three or more free parameters.  CI size: the twin dam break at h = 0.06 m (3
 for 0.3 s, a few iterations."""
 
 import json
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -173,9 +174,10 @@ def test_distinct_optima_are_reported_and_a_tie_within_the_noise_is_warned(eps, 
     from calibration.optima import distinct_optima
     from calibration.params import ParameterSet
 
-    import typing
+    class Mat(typing.NamedTuple):
+        a: float
+        b: float
 
-    Mat = typing.NamedTuple("Mat", [("a", float), ("b", float)])
     ps = ParameterSet.from_names(["a", "b"], Mat(jnp.float64(1.0), jnp.float64(1.0)),
                                  bounds={"a": (0.01, 100), "b": (0.01, 100)})
     exp = _TwoBasins(eps)
