@@ -390,6 +390,12 @@ def _warnings(ml) -> list:
                     "the value is the refit's, its numerical std the fixed-parameter one (std_numerical_refit keeps "
                     "the other)"
                 )
+            elif num.method[k] == "linear" and lin > 3 * refit and lin > 2 * stat:
+                warnings.append(
+                    f"{k}: its shift at fixed parameters ({lin:.3g}) is {lin / max(refit, 1e-300):.3g}x the refit's "
+                    f"({refit:.3g}): the finer model is not linear over that step (the coarser optimum lies far from "
+                    "the finer one), so the numerical std is conservative; std_numerical_refit keeps the other"
+                )
     for lv in ml.levels:
         if lv.estimate is not None and lv.estimate.get("over_budget"):
             warnings.append(lv.estimate["message"])
