@@ -55,7 +55,30 @@ import mpmjax
 
 from .experiments import joint_loss, joint_residuals
 
-__all__ = ["FitResult", "Objective", "fit", "forward_mode_gradient", "loss_function"]
+__all__ = [
+    "DEFAULT_STARTS",
+    "MULTISTART_MIN_PARAMS",
+    "FitResult",
+    "Objective",
+    "default_starts",
+    "fit",
+    "forward_mode_gradient",
+    "loss_function",
+]
+
+# multi-start by default (issue 32): from this many free parameters on, ``calibrate`` runs
+# DEFAULT_STARTS starts (the first at the initial values, the others a random factor e^{N(0, ln 2)}
+# away) in lockstep at the first level, and reports every distinct optimum
+# (``calibration.optima``): with three or more parameters the loss has had more than one basin
+# (issue 32: lambda0 at 0.06 and at 1.33 in a five-parameter fit).
+MULTISTART_MIN_PARAMS = 3
+DEFAULT_STARTS = 4
+
+
+def default_starts(n_free: int) -> int:
+    """The number of starts ``calibrate`` runs when not told: DEFAULT_STARTS for
+    MULTISTART_MIN_PARAMS or more free parameters, else 1."""
+    return DEFAULT_STARTS if n_free >= MULTISTART_MIN_PARAMS else 1
 
 
 class FitResult(NamedTuple):
@@ -71,7 +94,13 @@ class FitResult(NamedTuple):
     index; starts: initial values per start; finals: fitted values per start;
     final_losses: final loss per start; gradient: "forward" or "reverse" (how it was computed);
     cpu_s, compile_cpu_s: CPU time of the loop and of the compilation [s] (``time.process_time``,
-    all threads); evaluations: {"value", "value_and_grad"}, model evaluations (one start each).
+    all threads); evaluations: {"value", "value_and_grad"}, model evaluations (one start each);
+    run_s: wall time spent running the compiled model (the rest of ``wall_s`` is compilation and
+    the optimiser's own work) [s]; residuals_initial, residuals_final (``lm`` only, else None):
+    per start, (R, dR/dz) at its starting point and at its final point (R = the weighted residual
+    vector whose squared norm is the loss, ``residual_function``; None for a start another
+    process ran), what Levenberg-Marquardt evaluated there: the numerical std at fixed parameters
+    (``calibration.multilevel``) and the distinct optima of a multi-start fit read them.
     """
 
     params: dict
@@ -91,6 +120,9 @@ class FitResult(NamedTuple):
     cpu_s: float = float("nan")
     compile_cpu_s: float = float("nan")
     evaluations: dict | None = None
+    run_s: float = float("nan")
+    residuals_initial: list | None = None
+    residuals_final: list | None = None
 
 
 # "auto" gradient: forward mode up to this many free parameters (measured break-even ~2.7, see fit())
@@ -489,6 +521,11 @@ def fit(
     nan_vg = (np.asarray(np.nan), np.full(len(pset.free), np.nan))
     # LM's Gauss-Newton prediction of the relative decrease per start (inf: none, other methods)
     pred = np.full(n, np.inf)
+    rj_initial = [None] * n
+
+    def _rj(state):  # LM's (R, dR/dz) at its last accepted point
+        return np.asarray(state.f_info.residual), np.asarray(state.f_info.jac.as_matrix())
+
     if lm:
         # LM's first step evaluates R and J at the start (always accepted) and proposes the next point
         vgs = [nan_vg] * n
@@ -496,6 +533,7 @@ def fit(
             out = jupdate(jnp.asarray(zs[k]), states[k], jnp.asarray(np.nan), jnp.asarray(zs[k]))
             zs[k], states[k], vgs[k], pred[k] = (
                 np.asarray(out[0]), out[1], (np.asarray(out[2]), np.asarray(out[3])), float(out[4]))
+            rj_initial[k] = _rj(states[k])
     else:
         vgs = [obj.value_and_grad(zi) if mine[k] else nan_vg for k, zi in enumerate(zs)]
     loss = np.array([float(v) for v, _ in vgs])
@@ -570,4 +608,7 @@ def fit(
         cpu_s=time.process_time() - c0,
         compile_cpu_s=obj.compile_cpu_s,
         evaluations=dict(obj.evaluations),
+        run_s=obj.run_s,
+        residuals_initial=rj_initial if lm else None,
+        residuals_final=[_rj(states[k]) if mine[k] else None for k in range(n)] if lm else None,
     )

@@ -35,9 +35,25 @@ def _level_entries(ml) -> list:
             "cpu_s": lv.result.cpu_s,
             "evaluations": lv.result.evaluations,
             "loss_history": [float(v) for v in lv.result.history.min(axis=1)],
+            "estimate": lv.estimate,
         }
         for lv in ml.levels
     ]
+
+
+# what a one-level fit says about its std, in words (summary, fit.json, fit_profiles.png)
+ONE_LEVEL_NOTE = (
+    "resolution bias NOT ESTIMATED: one level (--levels 1); the std is statistical only and can be many times "
+    "smaller than the grid's error (run the default two levels)"
+)
+
+
+def resolution_bias_text(ml) -> str:
+    """fit.json's ``resolution_bias``: whether and how the grid's bias entered the std."""
+    if ml.numerical is None:
+        return ONE_LEVEL_NOTE
+    hs = " -> ".join(f"{h:g}" for h in ml.numerical.cell_sizes_m)
+    return f"estimated: std_numerical from {len(ml.numerical.cell_sizes_m)} levels (h = {hs} m)"
 
 
 def _experiment_entries(exps, unc) -> list:
@@ -67,12 +83,18 @@ def fit_document(ml, pset, warnings, wall, method, scene_name, overrides, levels
         "std_numerical": comb["std_numerical"],
         "rel_std": comb["rel_std"],
         "poorly_identified": comb["poorly_identified"],
+        "std_numerical_refit": (
+            None if ml.numerical is None or ml.numerical.refit_std is None else dict(ml.numerical.refit_std)
+        ),
         "std_definition": (
             "std = sqrt(std_statistical^2 + std_numerical^2); std_statistical: Gauss-Newton at the finest level; "
-            "std_numerical: |shift| of the fitted value between the last two levels, or with three levels where "
-            "the observed order allows, |finest - Richardson extrapolate| (numerical_uncertainty.method); null "
-            "with one level"
+            "std_numerical: the shift of the optimum between the last two levels at fixed parameters (the fine "
+            "level's residual change at the coarser optimum carried through the Gauss-Newton normal equations, "
+            "method 'linear'), or with three levels where the observed order allows, |finest - Richardson "
+            "extrapolate| (numerical_uncertainty.method); std_numerical_refit: the refitted values' own shift "
+            "(the estimator before issue 32); null with one level"
         ),
+        "resolution_bias": resolution_bias_text(ml),
         "numerical_uncertainty": None if ml.numerical is None else ml.numerical.as_dict(),
         "levels": _level_entries(ml),
         "loss_initial": ml.levels[0].result.loss_initial,
@@ -96,6 +118,7 @@ def fit_document(ml, pset, warnings, wall, method, scene_name, overrides, levels
         "finals": ml.levels[0].result.finals,
         "final_losses": [float(v) for v in ml.levels[0].result.final_losses],
         "best_start": ml.levels[0].result.best_start,
+        "optima": ml.optima,
         "compile_s": res.compile_s,
         "n_processes": jax.process_count(),
         "n_devices": jax.device_count(),
@@ -168,8 +191,11 @@ def summary_lines(doc) -> list:
         if num is None:
             s += ", numerical not estimated)"
         else:
-            how = {"shift": "shift", "richardson": "Richardson estimate"}[num["method"][k]]
-            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how})"
+            how = {"shift": "shift", "richardson": "Richardson estimate", "linear": "shift at fixed parameters"}[
+                num["method"][k]]
+            s += f", numerical {_fmt(doc['std_numerical'][k])} from the {how}"
+            refit = (doc.get("std_numerical_refit") or {}).get(k)
+            s += f"; refit shift {_fmt(refit)})" if num["method"][k] == "linear" and refit is not None else ")"
         if k in doc["poorly_identified"]:
             s += "  POORLY IDENTIFIED"
         out.append(s)
@@ -182,7 +208,21 @@ def summary_lines(doc) -> list:
             f"  {k}: 95 % profile-likelihood interval {lo} .. {hi}, Gauss-Newton {glo} .. {ghi}"
             + ("  DISAGREE (factor > 2)" if p["warning"] else "")
         )
-    if num is not None:
+    opt = doc.get("optima")
+    if opt is not None:
+        n_opt = len(opt["optima"])
+        word = "optima" if n_opt > 1 else "optimum"
+        out.append(f"  {opt['n_starts']} starts, {n_opt} distinct {word} at the first level:")
+        for o in opt["optima"]:
+            vals = ", ".join(f"{k} = {v:.4g}" for k, v in o["params"].items())
+            extra = (
+                "" if o["chi2_above_best"] is None
+                else f", chi2 +{o['chi2_above_best']:.3g}, d2 {o['d2_from_best']:.3g}"
+            )
+            out.append(f"    loss {o['loss']:.5g} (starts {', '.join(map(str, o['starts']))}{extra}): {vals}")
+    if num is None:
+        out.append("  " + ONE_LEVEL_NOTE)
+    else:
         for k, r in num["richardson"].items():
             if r["extrapolated"] is not None:
                 out.append(f"  Richardson: {k} -> {r['extrapolated']:.5g} (h -> 0, observed order {r['order']:.2f})")
@@ -217,7 +257,11 @@ def plot_fit(out, exp, pset, ml, profiles, doc):
     ax.set_xlabel("x [m]")
     ax.set_ylabel("height h [m]")
     hs = " -> ".join(f"{lv.cell_size_m:g}" for lv in ml.levels)
-    ax.set_title(f"fitted at h = {hs} m: value +- total std (statistical, numerical)", fontsize=9)
+    ax.set_title(
+        f"fitted at h = {hs} m: value +- total std (statistical, numerical)" if len(ml.levels) > 1
+        else f"fitted at h = {hs} m (one level): value +- statistical std; resolution bias NOT estimated",
+        fontsize=9,
+    )
     ax.text(
         0.99, 0.97, "\n".join(ln.strip() for ln in summary_lines(doc)), transform=ax.transAxes, ha="right", va="top",
         fontsize=6.5, family="monospace", bbox={"boxstyle": "round", "fc": "white", "alpha": 0.85},

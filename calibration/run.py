@@ -33,13 +33,22 @@ from .experiments import (
     ShearHistoryExperiment,
     frames_for,
 )
+from .fit import default_starts
 from .multilevel import MultilevelResult, check_levels, experiments_at_cell_size, fit_multilevel
 from .params import ParameterSet
 from .profile import check_profile_options, profile_likelihood
 from .sweep import FIELD_KEYS
 from .uncertainty import REL_STD_WARN
 
-__all__ = ["MAX_REFINE", "SIGMA_UNITS", "CalibrationResult", "calibrate", "join_options"]
+__all__ = [
+    "DEFAULT_LEVEL_BUDGET_S",
+    "DEFAULT_REFINE",
+    "MAX_REFINE",
+    "SIGMA_UNITS",
+    "CalibrationResult",
+    "calibrate",
+    "join_options",
+]
 
 # experiment kinds of --sigma / --weight, and the unit of each kind's sigma
 SIGMA_UNITS = {
@@ -52,6 +61,13 @@ SIGMA_UNITS = {
 
 # --refine: at most this many halvings (each costs ~8x the previous level's run in 2D)
 MAX_REFINE = 3
+# the default fit has two levels (h, then h/2): the shift between them is the numerical std, the
+# resolution bias that the statistical std does not see (issue 32: one level was confidently wrong,
+# mu0 -13 % +- 1 %).  ``levels=1`` (--levels 1) or ``refine=0`` asks for the fast one-level fit.
+DEFAULT_REFINE = 1
+# a finer level estimated (from the level before it) to take longer than this is announced with
+# its estimated cost before it starts, and the warning is kept in fit.json [s]
+DEFAULT_LEVEL_BUDGET_S = 600.0
 
 
 @dataclasses.dataclass
@@ -107,10 +123,41 @@ def _check_per_kind(values: dict, option: str) -> dict:
     return dict(values)
 
 
-def _levels(levels, refine: int, h0: float) -> list:
-    """Cell sizes of the fit's levels [m], coarse to fine, from --levels / --refine."""
-    if levels is not None:
+def _level_count(levels):
+    """``levels`` as a number of levels (an int, or text that is a plain integer such as "1"),
+    else None (cell sizes)."""
+    if isinstance(levels, bool):
+        return None
+    if isinstance(levels, int):
+        return levels
+    if isinstance(levels, str) and levels.strip().lstrip("+-").isdigit():
+        return int(levels.strip())
+    return None
+
+
+def _levels(levels, refine: int | None, h0: float) -> list:
+    """Cell sizes of the fit's levels [m], coarse to fine, from --levels / --refine: ``levels`` a
+    number of levels (``1``: the one-level fit; ``N``: h, h/2, ..., h/2^(N-1)), cell sizes (a
+    sequence, or text "H1,H2,..."), or None; ``refine`` a number of halvings; neither: two levels
+    (``DEFAULT_REFINE``)."""
+    if levels is not None and refine is not None:
+        raise ValueError("--levels and --refine both given; give one")
+    count = _level_count(levels)
+    if count is not None:
+        if not 1 <= count <= MAX_REFINE + 1:
+            raise ValueError(
+                f"--levels = {count}; allowed range: 1 .. {MAX_REFINE + 1} levels (a plain integer), or cell sizes "
+                "[m], e.g. 0.02,0.01"
+            )
+        refine = count - 1
+    elif levels is not None:
+        if isinstance(levels, str):
+            try:
+                return check_levels([v for v in levels.split(",") if v.strip()], "--levels")
+            except ValueError as e:
+                raise ValueError(f"{e} (got {levels!r})") from None
         return check_levels(levels, "--levels")
+    refine = DEFAULT_REFINE if refine is None else refine
     if not 0 <= refine <= MAX_REFINE:
         raise ValueError(f"--refine = {refine}; allowed range: 0 .. {MAX_REFINE} (halvings of the cell size)")
     return [h0 / 2**i for i in range(refine + 1)]
@@ -273,6 +320,27 @@ class _Progress:
             + (f", {self.starts} start(s)" if i == 0 else ", from the previous level's result")
         )
 
+    def on_estimate(self, i, h, est, budget_s):
+        """Before a finer level: its estimated cost, and a warning (kept in ``est``) when it
+        exceeds ``budget_s``."""
+        est["budget_s"] = budget_s
+        est["over_budget"] = est["wall_s"] > budget_s
+        how = (
+            f"{est['per_evaluation_s']:.3g} s per evaluation at the level before x {est['cost_ratio']:.3g} "
+            f"(particles x steps) x up to {est['evaluations']} evaluations + {est['fixed_s']:.3g} s compilation and "
+            "optimiser at the level before"
+        )
+        if est["over_budget"]:
+            est["message"] = (
+                f"level {i + 1}/{len(self.levels)} (h = {h:g} m) is estimated to take {est['wall_s']:.0f} s, over the "
+                f"budget of {budget_s:g} s ({how}); it runs anyway: interrupt and rerun with --levels 1 for the "
+                "one-level fit (no resolution bias estimate), fewer --refine-max-iter, or a larger --level-budget-s"
+            )
+            self.log(f"calibrate: warning: {est['message']}")
+        else:
+            self.log(f"calibrate: level {i + 1}/{len(self.levels)} (h = {h:g} m): estimated {est['wall_s']:.0f} s "
+                     f"({how})")
+
     def progress(self, level, h, it, max_iter, losses, best, running):
         if not self.writer:
             return
@@ -304,9 +372,33 @@ def _warnings(ml) -> list:
             )
     if ml.numerical is None:
         warnings.append(
-            "numerical (discretisation) uncertainty not estimated: one level; the std is statistical only and "
-            "misses the grid's resolution bias (rerun with --refine 1 or --levels)"
+            "numerical (discretisation) uncertainty not estimated: one level (--levels 1); the std is statistical "
+            "only and misses the grid's resolution bias, which can be many times larger (rerun without --levels 1: "
+            "the default fits two levels)"
         )
+    if ml.optima is not None:
+        warnings += ml.optima["warnings"]
+    num = ml.numerical
+    if num is not None and num.refit_std is not None:
+        for k in num.values:
+            lin, refit, stat = num.std[k], num.refit_std[k], comb["std_statistical"][k] or 0.0
+            if num.method[k] == "linear" and refit > 3 * lin and refit > 2 * stat:
+                warnings.append(
+                    f"{k}: the refit moved it by {refit:.3g} between the last two levels, "
+                    f"{refit / max(lin, 1e-300):.3g}x the shift at fixed parameters ({lin:.3g}): the finer level's "
+                    "fit went along a flat valley or to another optimum (the optimiser's path, not only the grid); "
+                    "the value is the refit's, its numerical std the fixed-parameter one (std_numerical_refit keeps "
+                    "the other)"
+                )
+            elif num.method[k] == "linear" and lin > 3 * refit and lin > 2 * stat:
+                warnings.append(
+                    f"{k}: its shift at fixed parameters ({lin:.3g}) is {lin / max(refit, 1e-300):.3g}x the refit's "
+                    f"({refit:.3g}): the finer model is not linear over that step (the coarser optimum lies far from "
+                    "the finer one), so the numerical std is conservative; std_numerical_refit keeps the other"
+                )
+    for lv in ml.levels:
+        if lv.estimate is not None and lv.estimate.get("over_budget"):
+            warnings.append(lv.estimate["message"])
     return warnings
 
 
@@ -372,7 +464,7 @@ def calibrate(
     learning_rate: float = 0.05,
     rtol: float = 1e-4,
     patience: int = 5,
-    starts: int = 1,
+    starts: int | None = None,
     seed: int = 0,
     gradient: str = "auto",
     sigma_m: float | None = None,
@@ -386,9 +478,10 @@ def calibrate(
     transient: str | Path | None = None,
     sigmas: dict[str, float] | None = None,
     weights: dict[str, float] | None = None,
-    refine: int = 0,
-    levels: Sequence[float] | None = None,
+    refine: int | None = None,
+    levels: Sequence[float] | int | str | None = None,
     refine_max_iter: int | None = None,
+    level_budget_s: float | None = None,
     profile: bool = False,
     profile_points: int = 9,
     profile_width: float = 4.0,
@@ -405,7 +498,18 @@ def calibrate(
 
     The arguments are ``mpmjax calibrate``'s options (docs/calibration.md): ``overrides`` is
     ``--set`` (``KEY=VALUE`` strings), ``sigmas`` / ``weights`` are ``--sigma`` / ``--weight`` by
-    experiment kind (``SIGMA_UNITS``), ``init`` / ``bounds`` / ``transforms`` are by parameter name."""
+    experiment kind (``SIGMA_UNITS``), ``init`` / ``bounds`` / ``transforms`` are by parameter name.
+
+    Levels: by default two (the scene's cell size h, then h/2; ``DEFAULT_REFINE``), so that the
+    numerical std measures the resolution bias; ``levels=1`` is the one-level fit (its outputs say
+    that the bias is not estimated), ``levels=N`` N levels, ``levels=[h1, h2, ...]`` (or the text
+    "h1,h2") the cell sizes, ``refine=K`` K halvings.  ``level_budget_s`` (default
+    ``DEFAULT_LEVEL_BUDGET_S``): a finer level estimated to take longer is announced, with its
+    estimated cost, before it starts (and the warning is kept in fit.json); the fit goes on.
+
+    Starts: ``starts=None`` (the default) runs ``calibration.fit.default_starts``: 4 starts for
+    three or more free parameters, else 1; fit.json's ``optima`` lists every distinct optimum
+    and its loss, with a warning where two within the noise level disagree."""
     out = Path(out)
     join(join_options(coordinator, num_processes, process_id, distributed))  # before any JAX computation
     writer = is_writer()  # only process 0 writes --out and prints progress
@@ -416,6 +520,9 @@ def calibrate(
     data_times = [p.t_s for p in profiles] + (list(series.t_s) if series else [])
     data_times += [float(t) for r in rests or [] for t in r.t_s]
     names = _fit_names(fit, method, gradient)
+    budget = DEFAULT_LEVEL_BUDGET_S if level_budget_s is None else float(level_budget_s)
+    if not (budget > 0 and np.isfinite(budget)):
+        raise ValueError(f"--level-budget-s = {level_budget_s!r}; allowed range: > 0 and finite [s]")
     init = dict(init or {})
     cfg, overrides, levels = _scene_levels(
         scene, overrides, data_times, init, levels, refine, profile,
@@ -425,6 +532,7 @@ def calibrate(
     pset = ParameterSet.from_names(
         names, setup.params.material, init=init, bounds=dict(bounds or {}), transforms=dict(transforms or {})
     )
+    starts = default_starts(len(pset.free)) if starts is None else starts
     # the observable is the same at every level: bandwidth and runout sigma fixed in metres
     bandwidth_m = bandwidth_m if bandwidth_m is not None else levels[0]
     runout_sigma_m = runout_sigma_m if runout_sigma_m is not None else 2 * levels[0]
@@ -444,8 +552,9 @@ def calibrate(
     t0 = time.perf_counter()
     ml = fit_multilevel(
         make_experiments, pset, levels, max_iter=max_iter, refine_max_iter=refine_max_iter, n_starts=starts,
-        progress=shown.progress, on_level=shown.on_level, method=method, learning_rate=learning_rate, rtol=rtol,
-        patience=patience, seed=seed, gradient=gradient,
+        progress=shown.progress, on_level=shown.on_level, on_estimate=lambda i, h, est: shown.on_estimate(
+            i, h, est, budget), method=method, learning_rate=learning_rate, rtol=rtol, patience=patience, seed=seed,
+        gradient=gradient,
     )
     wall = time.perf_counter() - t0
     warnings = _warnings(ml)

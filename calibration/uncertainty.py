@@ -45,6 +45,17 @@ std = sqrt(std_statistical^2 + std_numerical^2).
   (for p < 1 this is larger than the last shift).  Otherwise nothing is extrapolated, the
   reason is recorded, and std_numerical falls back to the last shift.
 
+* At fixed parameters (the default with two or more levels, issue 32): the fine model's
+  residuals R_f and Jacobian J_f at the coarse optimum theta_c (what the fine level's first
+  Levenberg-Marquardt evaluation computes anyway) carried through the Gauss-Newton normal
+  equations, dz = -(J_f^T J_f)^+ J_f^T R_f: the shift of the optimum that the change of the
+  residuals between the grids implies to first order, with no re-optimisation, so that a refit
+  which wanders along a flat valley or jumps to another basin does not inflate it.
+  std_numerical = |(dtheta/dz) dz| (``linear``; the Gauss-Newton step in the parameters
+  themselves, the same whatever the transform); the refit's own shift stays reported
+  (``refit_std``) and the fitted value stays the refit's.  With three or more levels the
+  Richardson estimate (above) is used where it applies, else the fixed-parameter one.
+
 A parameter is *poorly identified* when its statistical relative std exceeds ``rel_std_warn``
 (or is not finite), or when its total relative std does: std / |theta| > 0.5 means the 2 sigma
 interval reaches zero, i.e. it is wider than the value itself.
@@ -73,6 +84,8 @@ __all__ = [
     "identifiability",
     "identifiability_lines",
     "information_terms",
+    "fixed_parameter_shift",
+    "gauss_newton_step",
     "numerical_uncertainty",
 ]
 
@@ -277,10 +290,13 @@ def identifiability_lines(report: dict) -> list:
 class NumericalUncertainty(NamedTuple):
     """Discretisation uncertainty of fitted values from fits at several cell sizes (module
     docstring).  cell_sizes_m: the levels, coarse to fine; values: name -> fitted value per
-    level; std: name -> numerical std of the finest level's value; method: name -> "shift"
-    or "richardson"; order: name -> observed order p (None where not available);
-    extrapolated: name -> Richardson value theta_inf (None where not extrapolated); reason:
-    name -> why not extrapolated (None where it was)."""
+    level; std: name -> numerical std of the finest level's value; method: name -> "shift",
+    "richardson" or "linear" (at fixed parameters); order: name -> observed order p (None where
+    not available); extrapolated: name -> Richardson value theta_inf (None where not
+    extrapolated); reason: name -> why not extrapolated (None where it was); linear: name ->
+    the signed shift of the last two levels at fixed parameters (None where not computed);
+    refit_std: name -> what std would be from the refit values alone (the last shift, or the
+    Richardson estimate)."""
 
     cell_sizes_m: tuple
     values: dict
@@ -289,9 +305,11 @@ class NumericalUncertainty(NamedTuple):
     order: dict
     extrapolated: dict
     reason: dict
+    linear: dict | None = None
+    refit_std: dict | None = None
 
     def as_dict(self):
-        return {
+        d = {
             "cell_sizes_m": list(self.cell_sizes_m),
             "values_per_level": {k: list(v) for k, v in self.values.items()},
             "method": dict(self.method),
@@ -300,6 +318,28 @@ class NumericalUncertainty(NamedTuple):
                 for k in self.values
             },
         }
+        if self.linear is not None:
+            refit = {k: v[-1] - v[-2] for k, v in self.values.items()}
+            d["estimators"] = {
+                "fixed_parameters": {k: (abs(v) if v is not None else None) for k, v in self.linear.items()},
+                "refit": dict(self.refit_std or {}),
+                "definition": FIXED_PARAMETER_DEFINITION,
+            }
+            d["shift_linear"] = dict(self.linear)
+            d["shift_refit"] = refit
+            d["shift_nonlinear"] = {
+                k: (refit[k] - v if v is not None else None) for k, v in self.linear.items()
+            }
+        return d
+
+
+FIXED_PARAMETER_DEFINITION = (
+    "fixed_parameters: |dtheta| with dtheta = (dtheta/dz) dz, dz = -(J_f^T J_f)^+ J_f^T R_f, the fine level's "
+    "residuals R_f and Jacobian J_f (in the fit's transformed z) at the coarser level's optimum theta_c, carried "
+    "through the Gauss-Newton normal equations (no re-optimisation; the same step as in the parameters "
+    "themselves); refit: |theta_L - theta_(L-1)| of the refitted values (or the Richardson estimate with three "
+    "levels); shift_nonlinear = shift_refit - shift_linear"
+)
 
 
 def _observed_order(h, d1, d2, lo, hi):
@@ -323,11 +363,16 @@ def _observed_order(h, d1, d2, lo, hi):
     return 0.5 * (a + b), None
 
 
-def numerical_uncertainty(cell_sizes_m, values: dict, *, order_range=ORDER_RANGE) -> NumericalUncertainty:
+def numerical_uncertainty(
+    cell_sizes_m, values: dict, *, order_range=ORDER_RANGE, linear: dict | None = None
+) -> NumericalUncertainty:
     """Numerical std of the finest level's fitted values (module docstring).
 
     cell_sizes_m: the levels' cell sizes [m], strictly decreasing (at least two); values:
-    name -> sequence of the fitted value at each level."""
+    name -> sequence of the fitted value at each level; linear: optional name -> the signed
+    shift of the last two levels at fixed parameters (:func:`fixed_parameter_shift`): then it
+    is the std where Richardson does not apply (method "linear"), and the refit's own estimate
+    is kept as ``refit_std``."""
     h = [float(x) for x in cell_sizes_m]
     if len(h) < 2 or any(not (b < a) for a, b in zip(h, h[1:])) or h[-1] <= 0:
         raise ValueError(f"cell sizes {h}: need at least two levels, strictly decreasing and > 0 [m]")
@@ -353,7 +398,55 @@ def numerical_uncertainty(cell_sizes_m, values: dict, *, order_range=ORDER_RANGE
         inf = v[-1] - c * h[-1] ** p
         std[k], method[k], order[k], extra[k] = abs(v[-1] - inf), "richardson", p, inf
     vals = {k: [float(x) for x in v] for k, v in values.items()}
-    return NumericalUncertainty(tuple(h), vals, std, method, order, extra, reason)
+    refit_std = dict(std)
+    if linear is not None:
+        linear = {k: (None if linear.get(k) is None or not math.isfinite(linear[k]) else float(linear[k]))
+                  for k in values}
+        for k in values:
+            if method[k] != "richardson" and linear[k] is not None:
+                std[k], method[k] = abs(linear[k]), "linear"
+    return NumericalUncertainty(tuple(h), vals, std, method, order, extra, reason, linear,
+                                refit_std if linear is not None else None)
+
+
+def gauss_newton_step(R, J, rcond: float = 1e-6):
+    """dz = -(J^T J)^+ J^T R by a truncated SVD of J: singular values below ``rcond`` times the
+    largest are dropped, so a direction the data do not determine does not move (the same
+    truncation as :func:`from_fisher`'s 1e-12 on the eigenvalues of J^T J)."""
+    J = np.asarray(J, float)
+    R = np.asarray(R, float)
+    U, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    keep = sv > rcond * max(float(sv[0]) if sv.size else 0.0, np.finfo(float).tiny)
+    return -(Vt[keep].T @ ((U[:, keep].T @ R) / sv[keep]))
+
+
+def fixed_parameter_shift(pset, result, experiments, dtype=None) -> tuple:
+    """The signed shift, name -> value [SI], of a refined level's optimum implied to first order
+    by the change of the residuals between the grids at fixed parameters (module docstring):
+    the Gauss-Newton step of the refined level's residuals from its starting point (the coarser
+    optimum, ``pset``'s initial values).  With Levenberg-Marquardt (``result.residuals_initial``)
+    it costs nothing: the fine level's first evaluation computed R_f and J_f there; otherwise one
+    forward-mode Jacobian of ``experiments`` at that point.  Returns (shift, how)."""
+    names = pset.free
+    dt = dtype or (jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    z0 = np.asarray(pset.z0(dt), float)
+    th0 = {k: float(v) for k, v in pset.theta(jnp.asarray(z0, dt)).items()}
+    rj = (getattr(result, "residuals_initial", None) or [None])[0]
+    if rj is not None:
+        R, J = rj
+        dz = gauss_newton_step(R, J)
+        # the step in the parameters themselves: dtheta = (dtheta/dz) dz, which is the Gauss-Newton
+        # step of the residuals as functions of theta (J_theta = J_z (dtheta/dz)^-1), whatever the
+        # transform; mapping z0 + dz through the transform instead would saturate at a bound
+        D = np.diag(np.asarray(jax.jacfwd(pset.theta_vector)(jnp.asarray(z0, dt)), float))
+        return {k: float(D[i] * dz[i]) for i, k in enumerate(names)}, "lm"
+    thv, rs, Js, _ = information_terms(experiments, pset, th0)
+    R = np.concatenate([np.sqrt(e.weight / r.size) * r.ravel() for e, r in zip(experiments, rs, strict=True)])
+    J = np.concatenate(
+        [np.sqrt(e.weight / r.size) * Jm.reshape(r.size, -1) for e, r, Jm in zip(experiments, rs, Js, strict=True)]
+    )
+    dth = gauss_newton_step(R, J)
+    return {k: float(dth[i]) for i, k in enumerate(names)}, "gauss-newton"
 
 
 def combine(unc: Uncertainty, numerical: NumericalUncertainty | None, *, rel_std_warn: float = REL_STD_WARN) -> dict:

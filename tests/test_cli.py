@@ -22,7 +22,8 @@ from mpmjax.cli._status import run_command
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPECTED = (
-    "scenes run rheometer bench stress records pareto converge validate study calibrate design sweep sweep-merge"
+    "scenes run rheometer bench stress records pareto converge validate study calibrate calibrate-coverage "
+    "design sweep sweep-merge"
 ).split()
 
 

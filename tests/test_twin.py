@@ -138,13 +138,18 @@ def _multilevel_twin(tmp_path, capsys, times_s, max_iter, refine_max_iter):
     doc = json.loads((out / "fit.json").read_text())
     coarse, fine = (lv["params"]["mu0"] for lv in doc["levels"])
     stat, num, tot = (doc[k]["mu0"] for k in ("std_statistical", "std_numerical", "std"))
+    refit = doc["std_numerical_refit"]["mu0"]
     print(f"\nmultilevel twin: mu0 coarse {coarse:.4g}, fine {fine:.4g} (truth {truth}); std statistical "
-          f"{stat:.3g}, numerical {num:.3g}, total {tot:.3g}; losses {[lv['loss_final'] for lv in doc['levels']]}")
-    # the bookkeeping: the fitted value is the fine level's, std_numerical the shift between the
-    # levels and std their quadrature sum; the summary and the figure carry the numerical std
+          f"{stat:.3g}, numerical {num:.3g} at fixed parameters (refit shift {refit:.3g}), total {tot:.3g}; "
+          f"losses {[lv['loss_final'] for lv in doc['levels']]}")
+    # the bookkeeping: the fitted value is the fine level's; std_numerical the shift at fixed
+    # parameters (issue 32), std_numerical_refit the refitted values' shift, std the quadrature sum
+    # of the statistical and the fixed-parameter std; the summary and the figure carry both
     assert doc["params"]["mu0"] == fine and [lv["cell_size_m"] for lv in doc["levels"]] == [0.03, 0.015]
-    assert num == pytest.approx(abs(fine - coarse)) and tot == pytest.approx(np.hypot(num, stat))
-    assert f"numerical {num:.3g} from the shift" in err and "Richardson: mu0 not extrapolated" in err
+    assert refit == pytest.approx(abs(fine - coarse)) and tot == pytest.approx(np.hypot(num, stat))
+    assert doc["numerical_uncertainty"]["method"]["mu0"] == "linear"
+    assert f"numerical {num:.3g} from the shift at fixed parameters; refit shift {refit:.3g})" in err
+    assert "Richardson: mu0 not extrapolated" in err
     assert "domain.cell_size_m=0.015" in doc["scene_overrides"]
     assert (out / "fit_profiles.png").stat().st_size > 0
     # the physics and statistics (issue 15 item 1 acceptance)

@@ -1,7 +1,7 @@
-"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | validate | study |
-calibrate | design | sweep | sweep-merge``: argument parsing and dispatch only; the work is done by the
-library (``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``, ``mpmjax.studies`` and
-``calibration``.
+"""Command line: ``mpmjax scenes | run | rheometer | bench | stress | records | pareto | converge | validate |
+study | calibrate | calibrate-coverage | design | sweep | sweep-merge``: argument parsing and dispatch
+only; the work is done by the library (``mpmjax.run_scene``: ``mpmjax._driver``), ``mpmjax.rheometer``,
+``mpmjax.studies`` and ``calibration``.
 
 ``_commands.COMMANDS`` is the command table (name, help, options, handler); each command's options
 and handler are in one module (``_run``: scenes and run, ``_rheometer``, ``_studies``: bench, stress,

@@ -4,8 +4,17 @@ option parsers and the ``jax.distributed`` options that ``design`` and ``sweep``
 
 from __future__ import annotations
 
-from calibration.multilevel import check_levels
-from calibration.run import MAX_REFINE, SIGMA_UNITS, calibrate
+import sys
+
+import jax
+
+from calibration.coverage import SIZES as COVERAGE_SIZES
+from calibration.coverage import coverage_study
+from calibration.coverage import summary_lines as coverage_summary
+from calibration.fit import DEFAULT_STARTS, MULTISTART_MIN_PARAMS
+from calibration.run import DEFAULT_LEVEL_BUDGET_S, DEFAULT_REFINE, MAX_REFINE, SIGMA_UNITS, calibrate
+
+from ._status import UsageError
 
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
 
@@ -100,8 +109,9 @@ def add_calibrate_arguments(p) -> None:
     p.add_argument(
         "--starts",
         type=int,
-        default=1,
-        help="multi-start: number of starts, stepped in lockstep with one compiled model (default 1)",
+        help="multi-start: number of starts, stepped in lockstep with one compiled model (default "
+        f"{DEFAULT_STARTS} for {MULTISTART_MIN_PARAMS} or more free parameters, else 1); fit.json lists every "
+        "distinct optimum",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed of the extra starts")
     p.add_argument(
@@ -169,17 +179,22 @@ def _add_level_arguments(p) -> None:
     lv.add_argument(
         "--refine",
         type=int,
-        default=0,
         help=f"multi-fidelity: after the fit at the scene's cell size h, continue it at h/2, h/4, ... ({MAX_REFINE} "
-        "at most); the shift between levels is reported as the numerical std (default 0: one level, no numerical std)",
+        f"at most); the shift between levels is reported as the numerical std (default {DEFAULT_REFINE}: two levels; "
+        "0: one level, no numerical std)",
     )
     lv.add_argument(
         "--levels",
-        metavar="H1,H2,...",
-        help="multi-fidelity: the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine)",
+        metavar="N|H1,H2,...",
+        help="multi-fidelity: a number of levels (1: the fast one-level fit, whose resolution bias is not "
+        "estimated) or the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine)",
     )
+    p.add_argument("--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)")
     p.add_argument(
-        "--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)"
+        "--level-budget-s",
+        type=float,
+        help="a finer level estimated to take longer than this [s] is announced with its cost before it starts "
+        f"(default {DEFAULT_LEVEL_BUDGET_S:g})",
     )
     p.add_argument(
         "--profile",
@@ -189,25 +204,11 @@ def _add_level_arguments(p) -> None:
         "from the Gauss-Newton ones by more than a factor of 2",
     )
     p.add_argument("--profile-points", type=int, default=9, help="grid points per profile (odd, default 9)")
-    p.add_argument(
-        "--profile-width", type=float, default=4.0, help="grid half-width in Gauss-Newton std (default 4)"
-    )
-    p.add_argument(
-        "--profile-max-iter", type=int, default=10, help="fit iterations per profile point (default 10)"
-    )
+    p.add_argument("--profile-width", type=float, default=4.0, help="grid half-width in Gauss-Newton std (default 4)")
+    p.add_argument("--profile-max-iter", type=int, default=10, help="fit iterations per profile point (default 10)")
     p.add_argument("--out", default="calibration-out", help="output folder (default calibration-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     add_distributed_arguments(p)
-
-
-def _levels(text):
-    """--levels H1,H2,... -> the cell sizes [m], or ValueError naming the option and the text."""
-    if text is None:
-        return None
-    try:
-        return check_levels([v for v in text.split(",") if v.strip()], "--levels")
-    except ValueError as e:
-        raise ValueError(f"{e} (got {text!r})") from None
 
 
 def cmd_calibrate(args) -> int:
@@ -240,8 +241,9 @@ def cmd_calibrate(args) -> int:
         sigmas=kv(args.sigma, "--sigma"),
         weights=kv(args.weight, "--weight"),
         refine=args.refine,
-        levels=_levels(args.levels),
+        levels=args.levels,
         refine_max_iter=args.refine_max_iter,
+        level_budget_s=args.level_budget_s,
         profile=args.profile,
         profile_points=args.profile_points,
         profile_width=args.profile_width,
@@ -253,4 +255,28 @@ def cmd_calibrate(args) -> int:
         process_id=args.process_id,
         distributed=args.distributed,
     )
+    return 0
+
+
+def add_coverage_arguments(p) -> None:
+    """``mpmjax calibrate-coverage``: the coverage study of ``calibration.coverage``."""
+    p.add_argument("--twins", type=int, default=2, help="number of twins (default 2)")
+    p.add_argument("--fit", default="mu0", help="comma-separated parameters (default mu0)")
+    p.add_argument("--size", default="ci", choices=sorted(COVERAGE_SIZES), help="study size (default ci)")
+    p.add_argument("--levels", help="passed to calibrate (default: its default, two levels)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the twins' parameters and noise")
+    p.add_argument("--out", default="coverage-out", help="output folder (default coverage-out)")
+
+
+def cmd_coverage(args) -> int:
+    """Run the coverage study (float64, as the fits' tests) and print its summary."""
+    if args.twins < 1:
+        raise UsageError(f"--twins = {args.twins} is invalid: allowed range: >= 1")
+    jax.config.update("jax_enable_x64", True)
+    kw = {} if args.levels is None else {"levels": args.levels}
+    doc = coverage_study(
+        args.twins, fit=[s for s in args.fit.split(",") if s], size=args.size, seed=args.seed, out=args.out, **kw
+    )
+    for ln in coverage_summary(doc):
+        print(ln, file=sys.stderr)
     return 0

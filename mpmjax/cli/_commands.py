@@ -112,6 +112,14 @@ COMMANDS = (
         interrupted=_KEPT,
     ),
     Command(
+        "calibrate-coverage",
+        "coverage study: fit N synthetic twins with the defaults; how often the intervals hold the truth",
+        _calibrate.add_coverage_arguments,
+        _calibrate.cmd_coverage,
+        invalid=(ValueError,),
+        interrupted=_KEPT,
+    ),
+    Command(
         "design",
         "rank candidate measurements by the information they add (D-optimal)",
         _design.add_design_arguments,
