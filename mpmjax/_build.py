@@ -453,6 +453,7 @@ def build(cfg: dict) -> Setup:
         transfer=cfg["numerics.transfer"],
         force=cfg["numerics.force"],
         pressure=cfg["numerics.pressure"],
+        void_closure=cfg["numerics.void_closure"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],

@@ -175,6 +175,8 @@ class Scene:
       slab_capacity: with ``slab``, particle slots per device relative to an even share.
       pressure: ``explicit`` (the Tait EOS of each particle's J) or ``incompressible`` (one pressure
         per grid cell solved each step; ``_pressure``).
+      void_closure: with ``incompressible``, ``off`` or ``position`` (voids closed by moving the
+        particles; ``_pressure``, step 4).
     """
 
     dim: int
@@ -208,6 +210,7 @@ class Scene:
     slab_capacity: float = 1.5
     force: str = "gradient"
     pressure: str = "explicit"
+    void_closure: str = "off"
 
     @property
     def n_nodes(self) -> int:

@@ -125,8 +125,8 @@ def test_kappa_does_not_enter():
     np.testing.assert_array_equal(np.asarray(runs[0][1]), np.asarray(runs[1][1]))
 
 
-def _newtonian_final(mu, pressure="incompressible", dtype="float64", t_end=0.05):
-    s = _layer(pressure=pressure, mu=1.0, dtype=dtype, t_end=t_end, h=0.1)
+def _newtonian_final(mu, pressure="incompressible", dtype="float64", t_end=0.05, closure="off"):
+    s = _layer(pressure=pressure, mu=1.0, dtype=dtype, t_end=t_end, h=0.1, extra={"numerics.void_closure": closure})
     mat = s.params.material._replace(mu=jnp.asarray(mu, s.params.material.mu.dtype))
     params = s.params._replace(material=mat)
     # a tilted start so that the flow is not hydrostatic: the block leans over
@@ -135,9 +135,10 @@ def _newtonian_final(mu, pressure="incompressible", dtype="float64", t_end=0.05)
     return final
 
 
-def test_gradient_through_the_solve_matches_finite_difference():
+@pytest.mark.parametrize("closure", ["off", "position"])
+def test_gradient_through_the_solve_matches_finite_difference(closure):
     def obs(mu):
-        f = _newtonian_final(mu)
+        f = _newtonian_final(mu, closure=closure)
         return jnp.sum(jnp.where(f.active, f.x[:, 0] * f.x[:, 1], 0.0))
 
     mu, eps = 1.0, 1e-4
@@ -162,6 +163,7 @@ def test_rejected_combinations():
         ({"numerics.volume_averaging": "jbar"}, "numerics.volume_averaging"),
         ({"numerics.grid_density_cap": 0.05}, "numerics.grid_density_cap"),
         ({"numerics.devices": 2, "numerics.decomposition": "slab"}, "numerics.decomposition"),
+        ({"numerics.pressure": "explicit", "numerics.void_closure": "position"}, "numerics.void_closure"),
     ):
         with pytest.raises(m.SceneError, match=key):
             _layer(extra=extra)
@@ -228,23 +230,21 @@ def _grid_packing(s, state):
     return phi, deep
 
 
-def test_voids_close_by_moving_particles_not_their_velocity(monkeypatch):
+def test_voids_close_by_moving_particles_not_their_velocity():
     """A resting layer whose particles were spread 10 % apart vertically (its deep cells packed at
     0.91, as the incompressible step's particles used to dilate, docs/incompressible.md): the void
-    closure (``_pressure``, step 4) packs the deep cells to 0.99-1 (its dead band is 1 %; measured mean
-    0.996, least 0.990), while switched off (``POSITION_RELAXATION = None``) the same layer keeps its
-    voids (measured 0.909).  It moves particles, not their velocity: the fastest particle is no faster
-    than without it (measured 0.018 against 0.036 m/s: the stretched layer's own settling)."""
-    s = _layer(mu=5.0, t_end=0.5)
-    state = s.state._replace(x=s.state.x.at[:, 1].multiply(1.1))  # 0.2 m of material spread over 0.22 m
-    phi0, deep0 = _grid_packing(s, state)
-    assert 0.88 < np.mean(phi0[deep0]) < 0.93
+    closure (``numerics.void_closure = "position"``, ``_pressure`` step 4) packs the deep cells to
+    0.99-1 (its dead band is 1 %; measured mean 0.996, least 0.990), while with ``off`` (the default)
+    the same layer keeps its voids (measured 0.909).  It moves particles, not their velocity: the
+    fastest particle is no faster than without it (measured 0.018 against 0.036 m/s: the stretched
+    layer's own settling)."""
     out = {}
     for closure in (True, False):
-        with monkeypatch.context() as mp:
-            if not closure:
-                mp.setattr(_pressure, "POSITION_RELAXATION", None)
-            final = m.make_advance(s.scene)(state, s.params)  # traced afresh (m.run caches per scene)
+        s = _layer(mu=5.0, t_end=0.5, extra={"numerics.void_closure": "position" if closure else "off"})
+        state = s.state._replace(x=s.state.x.at[:, 1].multiply(1.1))  # 0.2 m of material spread over 0.22 m
+        phi0, deep0 = _grid_packing(s, state)
+        assert 0.88 < np.mean(phi0[deep0]) < 0.93
+        final, _ = m.run(s.scene, state, s.params)
         phi, deep = _grid_packing(s, final)
         assert deep.sum() >= 0.8 * deep0.sum()
         out[closure] = np.mean(phi[deep]), np.min(phi[deep]), float(np.max(np.abs(np.asarray(final.v)[final.active])))

@@ -1,5 +1,5 @@
 """The lab dam break (dambreak-lab, 15 s) with --set style overrides: runout (free-surface front),
-dt, steps, compile and loop wall/CPU time, as one JSON line (docs/validation.md, "Incompressible limit").
+dt, steps, compile and loop wall/CPU time and the deposit packing, as one JSON line (docs/validation.md, "Incompressible limit").
 
     .venv/bin/python benchmarks/accuracy/incompressible_lab.py numerics.pressure=incompressible
     .venv/bin/python benchmarks/accuracy/incompressible_lab.py material.bulk_modulus_pa=150000
@@ -25,4 +25,8 @@ jax.block_until_ready(st.x)
 wall=time.time()-t1; cpu=time.process_time()-c1
 x = np.asarray(st.x)[np.asarray(st.active)]
 r = float(m.free_surface_front(st.x, st.vol0, st.active, bandwidth=sc.h, x_lo=sc.lo[0], x_hi=sc.hi[0])) - info["runout_origin_m"]
-print(json.dumps(dict(args=args, dt=sc.dt, steps=sc.n_steps, compile=tc, loop_wall=wall, loop_cpu=cpu, far=float(x[:,0].max()), J=[float(np.asarray(st.J).min()), float(np.asarray(st.J).max())], lost=int(st.n_lost), runout=str(r))))
+from mpmjax.studies.converge import deposit_packing  # Sigma J V0 per bin area in the deposit's interior (1: no voids)
+
+act = np.asarray(st.active)
+pack = deposit_packing(np.asarray(st.x)[act], np.asarray(st.J)[act], np.asarray(st.vol0)[act], sc.h)
+print(json.dumps(dict(args=args, dt=sc.dt, steps=sc.n_steps, compile=tc, loop_wall=wall, loop_cpu=cpu, far=float(x[:,0].max()), J=[float(np.asarray(st.J).min()), float(np.asarray(st.J).max())], lost=int(st.n_lost), runout=str(r), packing=pack)))

@@ -376,6 +376,11 @@ def _check_pressure(out: dict):
     """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
     and the slab decomposition (whose halos the grid solve does not exchange) are refused."""
     if out["numerics.pressure"] == "explicit":
+        if out["numerics.void_closure"] != "off":
+            raise SceneError(
+                f"numerics.void_closure = {_show(out['numerics.void_closure'])} is invalid with numerics.pressure = "
+                "'explicit' (it closes voids through the grid pressure's solve); allowed: 'off'"
+            )
         return
     for key, off in (("numerics.volume_averaging", "none"), ("numerics.grid_density_cap", 0.0)):
         if out[key] != off:
