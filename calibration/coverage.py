@@ -160,6 +160,25 @@ def coverage_study(
     rows = []
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="coverage-"))
     work.mkdir(parents=True, exist_ok=True)
+
+    def document():  # coverage.json after every twin, so an interrupted study keeps its twins
+        return _document(
+            rows,
+            names,
+            bounds,
+            fixed,
+            init,
+            size,
+            sz,
+            h,
+            data_refine,
+            sigma_m,
+            seed,
+            scene,
+            calibrate_kwargs,
+            work if out is not None else None,
+        )
+
     for i in range(int(n_twins)):
         truth = {k: float(math.exp(rng.uniform(math.log(bounds[k][0]), math.log(bounds[k][1])))) for k in names}
         mat = [f"{SCENE_KEYS[k]}={v!r}" for k, v in {**fixed, **truth}.items()]
@@ -232,22 +251,7 @@ def coverage_study(
             cpu_s=time.process_time() - c0,
         )
         rows.append(row)
-        _document(
-            rows,
-            names,
-            bounds,
-            fixed,
-            init,
-            size,
-            sz,
-            h,
-            data_refine,
-            sigma_m,
-            seed,
-            scene,
-            calibrate_kwargs,
-            work if out is not None else None,
-        )
+        document()
         log(
             f"coverage: twin {i + 1}/{n_twins}: "
             + ", ".join(
@@ -258,22 +262,7 @@ def coverage_study(
             )
             + f"; {row['wall_s']:.0f} s wall, {row['cpu_s']:.0f} s CPU"
         )
-    return _document(
-        rows,
-        names,
-        bounds,
-        fixed,
-        init,
-        size,
-        sz,
-        h,
-        data_refine,
-        sigma_m,
-        seed,
-        scene,
-        calibrate_kwargs,
-        work if out is not None else None,
-    )
+    return document()
 
 
 def summary_lines(doc) -> list:

@@ -85,6 +85,33 @@ def _linear_conditions(walls, terrain, t_mask, t_nrm, pipe):
     return P
 
 
+def _push_out(x, v_p, walls, terrain):
+    """Particle-level walls: a particle behind a wall plane or below the terrain is pushed back onto
+    it and loses its inward normal velocity.  Column by column over the normal's nonzero components
+    only: a box face touches one column, so the walls' updates do not chain through every column
+    (XLA would recompute the chain in each fusion that reads it)."""
+    dim = x.shape[1]
+    xs, vs = [x[:, a] for a in range(dim)], [v_p[:, a] for a in range(dim)]
+    for _, nrm, wall in walls:
+        axes = np.flatnonzero(nrm)
+        phi = sum((xs[a] - float(wall.point[a])) * float(nrm[a]) for a in axes)
+        vn = sum(vs[a] * float(nrm[a]) for a in axes)
+        behind = phi < 0.0
+        inward = behind & (vn < 0.0)
+        for a in axes:
+            xs[a] = jnp.where(behind, xs[a] - phi * float(nrm[a]), xs[a])
+            vs[a] = jnp.where(inward, vs[a] - vn * float(nrm[a]), vs[a])
+    x, v_p = jnp.stack(xs, axis=1), jnp.stack(vs, axis=1)
+    if terrain is not None:
+        zb = terrain.height(x[:, :-1], jnp)
+        below = x[:, -1] < zb
+        x = x.at[:, -1].set(jnp.where(below, zb, x[:, -1]))
+        n_p = terrain.normal(x[:, :-1], jnp)
+        vn = jnp.sum(v_p * n_p, axis=1)
+        v_p = jnp.where((below & (vn < 0.0))[:, None], v_p - vn[:, None] * n_p, v_p)
+    return x, v_p
+
+
 def make_step(scene: Scene, axis: str | None = None):
     """Build the pure step function ``step(state, params) -> state`` for ``scene``.
 
@@ -199,27 +226,7 @@ def make_step(scene: Scene, axis: str | None = None):
         if d_node is not None:  # the incompressible step's void closure: a displacement only (_pressure)
             x = x + _wsum(st.w, st.gather(d_node))
 
-        # particle-level walls: push back out, remove inward normal velocity.  Column by column over
-        # the normal's nonzero components only: a box face touches one column, so the walls' updates
-        # do not chain through every column (XLA would recompute the chain in each fusion that reads it)
-        xs, vs = [x[:, a] for a in range(dim)], [v_p[:, a] for a in range(dim)]
-        for _, nrm, wall in walls:
-            axes = np.flatnonzero(nrm)
-            phi = sum((xs[a] - float(wall.point[a])) * float(nrm[a]) for a in axes)
-            vn = sum(vs[a] * float(nrm[a]) for a in axes)
-            behind = phi < 0.0
-            inward = behind & (vn < 0.0)
-            for a in axes:
-                xs[a] = jnp.where(behind, xs[a] - phi * float(nrm[a]), xs[a])
-                vs[a] = jnp.where(inward, vs[a] - vn * float(nrm[a]), vs[a])
-        x, v_p = jnp.stack(xs, axis=1), jnp.stack(vs, axis=1)
-        if terrain is not None:
-            zb = terrain.height(x[:, :-1], jnp)
-            below = x[:, -1] < zb
-            x = x.at[:, -1].set(jnp.where(below, zb, x[:, -1]))
-            n_p = terrain.normal(x[:, :-1], jnp)
-            vn = jnp.sum(v_p * n_p, axis=1)
-            v_p = jnp.where((below & (vn < 0.0))[:, None], v_p - vn[:, None] * n_p, v_p)
+        x, v_p = _push_out(x, v_p, walls, terrain)
         if per.any():
             lo_ = jnp.asarray(lo, dtp)[None, :]
             wrapped = lo_ + jnp.mod(x - lo_, jnp.asarray(span, dtp)[None, :])

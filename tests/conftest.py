@@ -66,3 +66,11 @@ def stub_result_pictures(mp: pytest.MonkeyPatch) -> None:
 def no_result_pictures(monkeypatch):
     """``stub_result_pictures`` for one test."""
     stub_result_pictures(monkeypatch)
+
+
+# shared by test_engine.py and test_engine_shapes.py
+# Round-off budget for conservation identities in float64: each step sums O(10^3)
+# terms of similar magnitude (error ~ sqrt(N) eps ~ 1e-14 relative); over 100-300
+# steps that accumulates to ~1e-13, so 1e-12 leaves an order of magnitude of margin.
+ROUNDOFF = 1e-12
+SHAPES = ("linear", "gimp", "quadratic", "cubic")  # the 1-D shape functions without a boundary modification
