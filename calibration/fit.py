@@ -379,6 +379,65 @@ def _exchange(mine, zs, loss, gn, *extra):
     return (list(z), np.asarray(got["loss"])[owner, k], np.asarray(got["gn"])[owner, k], *ex)
 
 
+def _optimiser(method, obj, f, pset, dtype, learning_rate):
+    """``(opt, update)``: the optimiser (its ``init``) and one iteration ``update(z, s, v, g)`` of
+    ``fit``'s method (``adam``, ``lbfgs`` or ``lm``; LM's update also returns the relative decrease
+    its Gauss-Newton step predicts)."""
+    if method == "adam":
+        opt = optax.adam(learning_rate)
+
+        def update(z, s, v, g):
+            u, s = opt.update(g, s, z)
+            nz = optax.apply_updates(z, u)
+            nv, ng = obj.traced_value_and_grad(nz)
+            return nz, s, nv, ng
+
+    elif method == "lbfgs":
+        opt = optax.lbfgs()
+
+        def update(z, s, v, g):
+            # the line search evaluates the loss and gradient at the accepted step and keeps them in
+            # its state (what optax.value_and_grad_from_state reads): the next iteration reuses them
+            u, ns = opt.update(g, s, z, value=v, grad=g, value_fn=f)
+            nz = optax.apply_updates(z, u)
+            nv, ng = optax.tree.get(ns, "value"), optax.tree.get(ns, "grad")
+            # a converged line search may return a non-finite step: keep the last iterate
+            ok = jnp.all(jnp.isfinite(nz)) & jnp.isfinite(nv)
+            return jax.tree.map(lambda a, b: jnp.where(ok, a, b), (nz, ns, nv, ng), (z, s, v, g))
+
+    else:
+        z_like = jax.ShapeDtypeStruct((len(pset.free),), dtype)
+        res = obj.traced_residuals(z_like)
+        r_struct = jax.eval_shape(res, z_like)
+
+        def lm_fn(y, args):
+            return res(y), None
+
+        # optimistix's own (Cauchy) termination is not used: the loop below stops each start
+        solver = optx.LevenbergMarquardt(rtol=0.0, atol=0.0)
+        opts = {"jac": "bwd"}  # jax.jacrev of the callback: its custom_vjp returns the Jacobian computed with R
+
+        class _Opt:  # the optax-like init the loop calls
+            @staticmethod
+            def init(z):
+                return solver.init(lm_fn, z, None, opts, r_struct, None, frozenset())
+
+        opt = _Opt
+
+        def update(z, s, v, g):
+            # one solver step: R and J at the proposed point, accepted or rejected by the trust region;
+            # returns the last accepted point, its loss |R|^2 and gradient 2 J^T R, and the relative
+            # decrease the full Gauss-Newton step predicts from there
+            ny, ns, _ = solver.step(lm_fn, z, None, opts, s, frozenset())
+            r, jac = ns.f_info.residual, ns.f_info.jac.as_matrix()
+            nv = jnp.sum(r**2)
+            dz = jnp.linalg.lstsq(jac, -r)[0]
+            pred = jnp.sum((jac @ dz) ** 2) / jnp.maximum(nv, jnp.finfo(nv.dtype).tiny)
+            return ny, ns, nv, 2.0 * jac.T @ r, pred
+
+    return opt, update
+
+
 def fit(
     experiments,
     pset,
@@ -445,58 +504,7 @@ def fit(
     f = obj.traced()
     lm = method == "lm"
 
-    if method == "adam":
-        opt = optax.adam(learning_rate)
-
-        def update(z, s, v, g):
-            u, s = opt.update(g, s, z)
-            nz = optax.apply_updates(z, u)
-            nv, ng = obj.traced_value_and_grad(nz)
-            return nz, s, nv, ng
-
-    elif method == "lbfgs":
-        opt = optax.lbfgs()
-
-        def update(z, s, v, g):
-            # the line search evaluates the loss and gradient at the accepted step and keeps them in
-            # its state (what optax.value_and_grad_from_state reads): the next iteration reuses them
-            u, ns = opt.update(g, s, z, value=v, grad=g, value_fn=f)
-            nz = optax.apply_updates(z, u)
-            nv, ng = optax.tree.get(ns, "value"), optax.tree.get(ns, "grad")
-            # a converged line search may return a non-finite step: keep the last iterate
-            ok = jnp.all(jnp.isfinite(nz)) & jnp.isfinite(nv)
-            return jax.tree.map(lambda a, b: jnp.where(ok, a, b), (nz, ns, nv, ng), (z, s, v, g))
-
-    else:
-        z_like = jax.ShapeDtypeStruct((len(pset.free),), dtype)
-        res = obj.traced_residuals(z_like)
-        r_struct = jax.eval_shape(res, z_like)
-
-        def lm_fn(y, args):
-            return res(y), None
-
-        # optimistix's own (Cauchy) termination is not used: the loop below stops each start
-        solver = optx.LevenbergMarquardt(rtol=0.0, atol=0.0)
-        opts = {"jac": "bwd"}  # jax.jacrev of the callback: its custom_vjp returns the Jacobian computed with R
-
-        class _Opt:  # the optax-like init the loop calls
-            @staticmethod
-            def init(z):
-                return solver.init(lm_fn, z, None, opts, r_struct, None, frozenset())
-
-        opt = _Opt
-
-        def update(z, s, v, g):
-            # one solver step: R and J at the proposed point, accepted or rejected by the trust region;
-            # returns the last accepted point, its loss |R|^2 and gradient 2 J^T R, and the relative
-            # decrease the full Gauss-Newton step predicts from there
-            ny, ns, _ = solver.step(lm_fn, z, None, opts, s, frozenset())
-            r, jac = ns.f_info.residual, ns.f_info.jac.as_matrix()
-            nv = jnp.sum(r**2)
-            dz = jnp.linalg.lstsq(jac, -r)[0]
-            pred = jnp.sum((jac @ dz) ** 2) / jnp.maximum(nv, jnp.finfo(nv.dtype).tiny)
-            return ny, ns, nv, 2.0 * jac.T @ r, pred
-
+    opt, update = _optimiser(method, obj, f, pset, dtype, learning_rate)
     jupdate = jax.jit(update)
     if z_starts is None:
         z, start_thetas = _starts(pset, int(n_starts), float(start_spread), seed, dtype)
