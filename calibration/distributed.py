@@ -21,7 +21,7 @@ Two ways to spread one batch (sweep cases, calibration starts) over more than on
   one another.
 
 Every lane computes the same function of its own inputs, so a distributed batch equals the
-single-process batch to float rounding (tests/test_distributed.py).
+single-process batch to float rounding (tests/test_parallel_distributed.py).
 """
 
 from __future__ import annotations

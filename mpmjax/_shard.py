@@ -15,7 +15,7 @@ average's grid with ``numerics.volume_averaging = "jbar"``, and the count of par
 in the step.  Everything else is per particle.  The time and the lost count stay replicated.
 
 Results equal the single-device run's to float rounding, not bit for bit: the reduction sums
-the devices' partial grids in another order than one scatter does (tests/test_shard.py).
+the devices' partial grids in another order than one scatter does (tests/test_parallel_shard.py).
 
 On a CPU, N host devices are made with ``jax_num_cpu_devices`` (``use_devices``), which works
 only before JAX starts its backends and holds for the whole process: the run driver

@@ -32,7 +32,7 @@ State's own order and dealt out again (``_distribute``, ``_collect``): the slab 
 so that each slab holds about as many active particles as the others,
 and each particle's place in the State is kept by its index (``ids``), so frames, calibration and
 ``--resume`` see the same State as on one device.  Results equal one device's to float rounding:
-the grid sums add the same terms in another order (tests/test_slab.py).
+the grid sums add the same terms in another order (tests/test_parallel_slab.py).
 
 Limits, checked when the scene is built (``check``): no periodic x axis (the halo ring is not
 built), no Navier slip on a wall whose normal is along x (its nodes read a neighbour plane that

@@ -52,9 +52,9 @@ def stub_result_pictures(mp: pytest.MonkeyPatch) -> None:
     """``run_scene`` without its pictures (result.png, and plan_view.png / sections.png in 3D).
 
     For tests that check a run's numbers and files other than the pictures: drawing them is a
-    large part of a coarse CI run (``tests/test_records.py``: 105 s of 266 s CPU in
+    large part of a coarse CI run (``tests/test_studies_records.py``: 105 s of 266 s CPU in
     ``plotting.plot_result``, 18 runs).  Every kind of picture is still drawn by the suite:
-    ``tests/test_builtin_scenes.py`` runs every built-in dam break and ``tests/test_inflow.py`` the
+    ``tests/test_builtin_scenes.py`` runs every built-in dam break and ``tests/test_boundary_inflow.py`` the
     pipe scenes through ``run_scene`` with pictures, and ``tests/test_plotting.py`` checks them."""
     from mpmjax import plotting
 

@@ -54,8 +54,8 @@ CI_OVERRIDES = {
 
 SCENES = sorted(mpmjax.builtin_scenes())
 # Dam breaks: the Ritter bound and body-mass checks below apply to them.  Pipe-inflow scenes
-# (no initial body; material enters by a schedule) are run coarse in tests/test_inflow.py, breach
-# releases on a DEM (no body box; a pond filled to the terrain) in tests/test_terrain_dem.py.
+# (no initial body; material enters by a schedule) are run coarse in tests/test_boundary_inflow.py, breach
+# releases on a DEM (no body box; a pond filled to the terrain) in tests/test_boundary_terrain_dem.py.
 DAMBREAKS = [
     n for n, cfg in ((n, mpmjax.load_scene(n)) for n in SCENES)
     if cfg["inflow.point_m"] is None and cfg["release.region_map_m"] is None

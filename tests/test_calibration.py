@@ -415,7 +415,7 @@ def test_alpha_and_T_from_a_final_profile_are_flagged():
     assert u.weakest["alpha"] * u.weakest["T"] < 0
 
 
-@pytest.mark.slow  # CI time: tests/test_joint.py checks the same additivity per experiment step
+@pytest.mark.slow  # CI time: tests/test_calibration_joint.py checks the same additivity per experiment step
 def test_joint_experiments_add_information():
     """Profiles plus a rheometer flow curve (both with known sigma): the Fisher matrices add
     exactly, so no standard deviation of the joint fit exceeds either experiment's alone, and

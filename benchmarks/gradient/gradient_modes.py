@@ -4,7 +4,7 @@
     python benchmarks/gradient/gradient_modes.py [ROUNDS] >> benchmarks/gradient/gradient_modes.jsonl
 
 The twin scene (data/twin-small-dambreak.toml, float64) against its synthetic profiles, as
-tests/test_twin.py builds it; k = 2 (mu0, lambda0) and k = 5 (all Coussot parameters) free.
+tests/test_calibration_twin.py builds it; k = 2 (mu0, lambda0) and k = 5 (all Coussot parameters) free.
 Each of value, forward mode (one jvp tangent per parameter under vmap) and reverse mode
 (``jax.value_and_grad``) is compiled first, then timed in turn (wall, best of 2 calls per round).
 """

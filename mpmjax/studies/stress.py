@@ -207,7 +207,7 @@ def case_config(case: Case, size: str) -> dict:
         raise ValueError(f"--size = {size!r} is invalid: allowed values: ci, full")
     # particles per cell: the scene's own (dambreak-lab: the default 3; field-dambreak-2d pins 2), as
     # users run them; at --size ci two lab cases then exceed the volume bound for a measured
-    # resolution reason (docs/performance.md, "Stress cases"; tests/test_stress.py UNDER_RESOLVED)
+    # resolution reason (docs/performance.md, "Stress cases"; tests/test_studies_stress.py UNDER_RESOLVED)
     ov = dict(case.overrides)
     ov.update(case.ci if size == "ci" else case.full)
     return load_scene(case.scene, ov)

@@ -1,6 +1,6 @@
 """Numerical (discretisation) uncertainty from fits at several cell sizes (issue 15 item 1):
 ``calibration.uncertainty.numerical_uncertainty`` / ``combine``, ``calibration.multilevel``,
-and ``mpmjax calibrate --refine / --levels``.  The twin test is in tests/test_twin.py."""
+and ``mpmjax calibrate --refine / --levels``.  The twin test is in tests/test_calibration_twin.py."""
 
 import math
 

@@ -8,8 +8,8 @@ stderr (no traceback), a documented exit status (docs/output.md) and loses no ea
 * the folder becoming unwritable mid-run: exit 4, result.h5 ``status = failed`` with the reason,
   summary.json ``status: failed`` with what was written, the last checkpoint kept.
 
-Concurrent runs into one folder: tests/test_output_lock.py; kill -9 and resume bit for bit:
-tests/test_resume.py.  As root a ``chmod`` does not stop writes, so the "unwritable" cases use
+Concurrent runs into one folder: tests/test_driver_output_lock.py; kill -9 and resume bit for bit:
+tests/test_driver_resume.py.  As root a ``chmod`` does not stop writes, so the "unwritable" cases use
 /proc (root cannot create files there) and a write that fails with EACCES by fault injection;
 the real ``chmod`` variants run when the suite is not root.
 """

@@ -125,7 +125,7 @@ def test_slabs_give_the_one_device_positions(two_device_run, case):
     edges kept (particles cross only by migration), with J-bar's second grid sum, and on 3 slabs
     (the column fills a third of the grid: two slab edges inside it).
 
-    As for the replicated layout (tests/test_shard.py), only the order of the additions that
+    As for the replicated layout (tests/test_parallel_shard.py), only the order of the additions that
     build the grid differs (the halo planes are summed from two partial grids), a few float64
     roundings per nodal sum, grown by the steps to the measured 1.7-1.9e-16 m (1.2-1.6e-15 in J).  A halo plane not
     added or not sent back, a particle on the wrong slab (its stencil outside the window the
