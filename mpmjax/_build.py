@@ -454,6 +454,7 @@ def build(cfg: dict) -> Setup:
         force=cfg["numerics.force"],
         pressure=cfg["numerics.pressure"],
         void_closure=cfg["numerics.void_closure"],
+        maxwell_rotation=cfg["numerics.maxwell_rotation"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],

@@ -71,20 +71,31 @@ def _mm(A, B):
     return jnp.stack(rows, axis=1)
 
 
-def deviatoric_update(tau, L, dprime, mu, G, dt, method: str):
+def deviatoric_update(tau, L, dprime, mu, G, dt, method: str, rotation: str = "jaumann"):
     """Deviatoric stress update [Pa].
 
-    ``maxwell``: upper-convected-free (Jaumann) Maxwell element integrated exactly at
-    constant d' over dt:  tau <- tau* e^{-G dt/mu} + 2 mu d' (1 - e^{-G dt/mu}), with
-    tau* = tau + dt (W tau - tau W).  The step response is bounded by 2 G dt d', so the
-    step is stable at the wave-speed limit with c^2 = (kappa + 4G/3)/rho for any mu.
-    For mu << G dt it is the viscous law 2 mu d'; the lag is the relaxation time mu/G.
+    ``maxwell``: a Maxwell element integrated exactly at constant d' over dt:
+    tau <- tau* e^{-G dt/mu} + 2 mu d' (1 - e^{-G dt/mu}), with tau* the stored stress turned
+    by the spin W over dt.  The step response is bounded by 2 G dt d', so the step is stable
+    at the wave-speed limit with c^2 = (kappa + 4G/3)/rho for any mu.  For mu << G dt it is
+    the viscous law 2 mu d'; the lag is the relaxation time mu/G.  G is a numerical device, and
+    so is what the spin turns (``rotation``):
+
+    * ``jaumann``: tau* = tau + dt (W tau - tau W), the corotational (Jaumann) Maxwell model.
+      Objective, but in steady simple shear its shear stress is mu gamma_dot / (1 + Wi^2),
+      Wi = mu gamma_dot / G = tau / G: the viscous law is missed by Wi^2 (Poiseuille with
+      G = rho v^2: 2.7 % too fast; the Bingham plug 4.3 %; docs/incompressible.md).
+    * ``lag``: only the stored stress's departure from the viscous stress, tau - 2 mu d', is
+      turned: tau* = tau + dt (W l - l W), l = tau - 2 mu d'.  Steady shear then has the fixed
+      point 2 mu d' exactly, and a rigid plug (d' = 0) turns its stress as ``jaumann`` does;
+      what remains is an O(Wi) departure from objectivity in flow that both spins and changes.
     ``explicit``: tau = 2 mu d' (thesis eq. 3.1); stable only for dt < rho h^2 / (2 d mu).
     """
     if method == "explicit":
         return 2.0 * mu[:, None, None] * dprime
     W = 0.5 * (L - jnp.swapaxes(L, -1, -2))
-    tau_rot = tau + dt * (_mm(W, tau) - _mm(tau, W))
+    turned = tau if rotation == "jaumann" else tau - 2.0 * mu[:, None, None] * dprime
+    tau_rot = tau + dt * (_mm(W, turned) - _mm(turned, W))
     x = G * dt / mu
     decay = jnp.exp(-x)[:, None, None]
     # 1 - e^{-x} via expm1: keeps the elastic limit 2 G dt d' exact in float32 for huge mu

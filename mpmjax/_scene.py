@@ -159,6 +159,8 @@ class Scene:
       viscous_update: ``maxwell`` (exponential Maxwell relaxation, stable for any mu)
         or ``explicit`` (sigma' = 2 mu d', needs dt < rho h^2/(2 d mu)).
       maxwell_G: Maxwell shear modulus [Pa] (numerical regularisation).
+      maxwell_rotation: ``jaumann`` or ``lag`` (what the Maxwell update turns with the spin;
+        ``_constitutive.deviatoric_update``).
       dt: fixed time step [s]; steps_per_frame, n_frames: the nested scan lengths.
       n_particles: buffer capacity.
       gate: optional aging gate.
@@ -211,6 +213,7 @@ class Scene:
     force: str = "gradient"
     pressure: str = "explicit"
     void_closure: str = "off"
+    maxwell_rotation: str = "jaumann"
 
     @property
     def n_nodes(self) -> int:

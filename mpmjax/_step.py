@@ -269,7 +269,9 @@ def make_step(scene: Scene, axis: str | None = None):
             beyond = along(x - jnp.asarray(scene.gate.point, dtp)[None, :], scene.gate.normal) > 0.0
             gate = gate | (state.active & beyond)
         mu, internal = rheo.viscosity(params.material, shear, state.internal, dt, gate)
-        tau = deviatoric_update(state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update)
+        tau = deviatoric_update(
+            state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update, scene.maxwell_rotation
+        )
         mu, internal, tau = derivative_boundary((mu, internal, tau))
 
         # loss detection: stencil outside the grid, or a non-finite state

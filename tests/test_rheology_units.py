@@ -314,6 +314,39 @@ def test_maxwell_elastic_limit_and_bound():
     np.testing.assert_allclose(np.asarray(out[0]), np.asarray(tau0[0]) + dt * (W @ tau0[0] - tau0[0] @ W), rtol=1e-14)
 
 
+@pytest.mark.parametrize("wi", [0.1, 0.5, 2.0])
+def test_maxwell_steady_shear_stress_by_rotation(wi):
+    """Steady simple shear of the Maxwell element, iterated to its fixed point: with the whole
+    stress turned (jaumann) the shear stress is mu g / (1 + Wi^2), Wi = mu g / G (the corotational
+    Maxwell model's exact steady state, to the O(dt) of the explicit rotation); with only the
+    departure from 2 mu d' turned (lag) it is the viscous mu g exactly."""
+    g, dt = 5.0, 1e-4
+    mu = wi * G_MOD / g
+    L, dprime = _shear_inputs(g)
+    mus = jnp.asarray([mu], F64)
+    for rotation, expect in (("jaumann", mu * g / (1 + wi**2)), ("lag", mu * g)):
+        def body(tau, _):
+            return deviatoric_update(tau, L, dprime, mus, G_MOD, dt, "maxwell", rotation), None
+
+        # relaxation time mu/G = wi/g: 40 of them (8e4 steps at wi = 2) leave e^-40 of the start
+        n = int(40 * wi / g / dt) + 1
+        tau, _ = jax.lax.scan(body, jnp.zeros((1, 2, 2), F64), None, length=n)
+        # jaumann: the rotation's explicit step shifts the fixed point by O(g dt) = 5e-4 relative
+        rtol = 2e-3 if rotation == "jaumann" else 1e-10
+        np.testing.assert_allclose(float(tau[0, 0, 1]), expect, rtol=rtol)
+
+
+def test_maxwell_lag_turns_a_rigid_plug_as_jaumann():
+    """d' = 0 (a spinning plug): lag turns the whole stored stress, bit for bit as jaumann."""
+    tau0 = jnp.asarray([[[100.0, 30.0], [30.0, -100.0]]], F64)
+    spin = jnp.asarray([[[0.0, 3.0], [-3.0, 0.0]]], F64)
+    zero_d = jnp.zeros((1, 2, 2), F64)
+    mu = jnp.asarray([1e6], F64)
+    a = deviatoric_update(tau0, spin, zero_d, mu, G_MOD, 1e-3, "maxwell", "jaumann")
+    b = deviatoric_update(tau0, spin, zero_d, mu, G_MOD, 1e-3, "maxwell", "lag")
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def _shear_wave(method, mu, rho, h, dt, n_steps, n_cells=16):
     """1-D periodic shear-wave model: v_x on nodes j h, tau on cells; the cell's velocity
     gradient is L = [[0, (v_{j+1} - v_j)/h], [0, 0]] (simple shear), its stress comes from

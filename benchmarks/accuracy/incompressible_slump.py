@@ -50,6 +50,15 @@ for f in range(sc.n_frames):
     fronts.append(gauge.front(x, np.asarray(st.vol0), a))
 wall = time.time() - t0; cpu = time.process_time() - c0
 v = np.asarray(st.v)[a]
+from mpmjax.studies.converge import deposit_packing  # Sigma J V0 per bin area in the interior (1: no voids)
+
+xa, Ja, V0a = x[a], np.asarray(st.J)[a], np.asarray(st.vol0)[a]
+packing = deposit_packing(xa, Ja, V0a, h)
+# the area under the free surface (each column of width h: its top particle + half a spacing) over Sigma J V0
+col = np.floor(xa[:, 0] / h).astype(int)
+top = np.zeros(col.max() + 1)
+np.maximum.at(top, col, xa[:, 1] + 0.5 * h / cfg["numerics.ppc"])
+area_ratio = float(np.sum(top) * h / np.sum(Ja * V0a))
 print(json.dumps(dict(B=B, asp=asp, cells=cells, over=over, xinf=xinf, front=fronts[-1], err_pct=100*(fronts[-1]-xinf)/xinf,
-      fronts=[round(f_,4) for f_ in fronts], vmax=float(np.abs(v).max()), dt=sc.dt, steps=sc.n_steps, wall=wall, cpu=cpu,
+      fronts=[round(f_,4) for f_ in fronts], packing=packing, area_ratio=area_ratio, vmax=float(np.abs(v).max()), dt=sc.dt, steps=sc.n_steps, wall=wall, cpu=cpu,
       J=[float(np.asarray(st.J)[a].min()), float(np.asarray(st.J)[a].max())], lost=int(st.n_lost))))

@@ -116,6 +116,15 @@ _HEAD: dict[str, Key] = {
         "Deviatoric stress update: exponential Maxwell (stable for any mu) or explicit.",
         choices=("maxwell", "explicit"),
     ),
+    "numerics.maxwell_rotation": Key(
+        str,
+        "jaumann",
+        "-",
+        "What the Maxwell update turns with the material's spin W: jaumann, the whole stored stress (objective; "
+        "in steady shear it gives mu gamma_dot / (1 + Wi^2), Wi = tau/G); lag, only the stored stress's "
+        "departure from the viscous stress 2 mu d' (steady shear exact; a rigid plug turns as with jaumann).",
+        choices=("jaumann", "lag"),
+    ),
     "numerics.maxwell_shear_modulus_pa": Key(
         float,
         0.0,
