@@ -191,9 +191,10 @@ def node_fill(scene: Scene) -> np.ndarray:
     seeding lattice (spacing 2 lp_cells cells, half a spacing off each wall): 1 in the interior,
     less where the kernel reaches through a wall.  phi = (1 - sum over the lattice sites beyond
     each wall of N(site - node) * spacing), multiplied over the walls (exact for box walls on
-    different axes; inclined planes and terrain are not counted, so there phi is low and the
-    grid volume check does not act).  With the boundary-modified B-splines the box walls are
-    counted exactly instead (``_fill_box_walls``), the extra planes as above.
+    different axes).  Inclined planes count as planes, and so does the terrain, as its tangent plane
+    under the node (its height and normal there), so that the cells a height map cuts read the
+    packing of the material above it, not a low one.  With the boundary-modified B-splines the box
+    walls are counted exactly instead (``_fill_box_walls``), the extra planes as above.
     """
     xn = scene.node_positions()
     sp = 2.0 * scene.lp_cells
@@ -203,14 +204,21 @@ def node_fill(scene: Scene) -> np.ndarray:
     walls = scene.walls
     if scene.shape in _shapes.BOUNDARY_MODIFIED:
         fill, walls = _fill_box_walls(scene, xn, sp, reach), _other_walls(scene)
-    for wall in walls:
-        nrm = np.asarray(wall.normal, float)
-        nrm = nrm / np.linalg.norm(nrm)
-        d = (xn - np.asarray(wall.point)) @ nrm / scene.h  # cells, positive inside
+    def beyond(d):
+        """The fill a plane at signed distance ``d`` [cells] (positive inside) leaves a node."""
         r = -s_k[None, :] - d[:, None]  # site minus node
         with jax.ensure_compile_time_eval():  # a constant, also when make_step runs under a trace
             missing = np.asarray(_shapes.kernel_1d(scene.shape, jnp.asarray(r), scene.lp_cells)).sum(axis=1) * sp
-        fill = fill * np.clip(1.0 - missing, 0.0, 1.0)
+        return np.clip(1.0 - missing, 0.0, 1.0)
+
+    for wall in walls:
+        nrm = np.asarray(wall.normal, float)
+        nrm = nrm / np.linalg.norm(nrm)
+        fill = fill * beyond((xn - np.asarray(wall.point)) @ nrm / scene.h)
+    if scene.terrain is not None:
+        xy = xn[:, :-1]
+        # the distance to the tangent plane at the node's own column: (z - z_b) n_z
+        fill = fill * beyond((xn[:, -1] - scene.terrain.height(xy)) * scene.terrain.normal(xy)[:, -1] / scene.h)
     return fill
 
 
