@@ -213,7 +213,7 @@ class Scene:
     force: str = "gradient"
     pressure: str = "explicit"
     void_closure: str = "off"
-    maxwell_rotation: str = "jaumann"
+    maxwell_rotation: str = "lag"
 
     @property
     def n_nodes(self) -> int:

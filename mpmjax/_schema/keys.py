@@ -118,11 +118,12 @@ _HEAD: dict[str, Key] = {
     ),
     "numerics.maxwell_rotation": Key(
         str,
-        "jaumann",
+        "lag",
         "-",
-        "What the Maxwell update turns with the material's spin W: jaumann, the whole stored stress (objective; "
-        "in steady shear it gives mu gamma_dot / (1 + Wi^2), Wi = tau/G); lag, only the stored stress's "
-        "departure from the viscous stress 2 mu d' (steady shear exact; a rigid plug turns as with jaumann).",
+        "What the Maxwell update turns with the material's spin W. lag: only the stored stress's departure from the "
+        "viscous stress 2 mu d' (steady shear exact; a rigid plug turns as with jaumann). jaumann (the default "
+        "until 2026-12-03): the whole stored stress (objective, but in steady shear it gives mu gamma_dot / "
+        "(1 + Wi^2), Wi = tau/G: Poiseuille 2.7 % fast at the incompressible default G; docs/incompressible.md).",
         choices=("jaumann", "lag"),
     ),
     "numerics.maxwell_shear_modulus_pa": Key(
