@@ -180,14 +180,15 @@ def _add_level_arguments(p) -> None:
         "--refine",
         type=int,
         help=f"multi-fidelity: after the fit at the scene's cell size h, continue it at h/2, h/4, ... ({MAX_REFINE} "
-        f"at most); the shift between levels is reported as the numerical std (default {DEFAULT_REFINE}: two levels; "
+        f"at most); the change between levels gives the numerical std (default {DEFAULT_REFINE}: two levels; "
         "0: one level, no numerical std)",
     )
     lv.add_argument(
         "--levels",
         metavar="N|H1,H2,...",
         help="multi-fidelity: a number of levels (1: the fast one-level fit, whose resolution bias is not "
-        "estimated) or the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine)",
+        "estimated) or the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine; default: "
+        "two levels, the scene's cell size h and h/2)",
     )
     p.add_argument("--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)")
     p.add_argument(
