@@ -14,6 +14,7 @@ calibration commands, whose library reports bad values with it), ``interrupted``
 from __future__ import annotations
 
 import sys
+import threading
 from argparse import Namespace
 
 from calibration.data import DataError
@@ -66,16 +67,28 @@ def status_of(e: BaseException, invalid: tuple = ()) -> tuple[int, object] | Non
     return None
 
 
-def run_command(command, args: Namespace) -> int:
-    """Run ``command.handler(args)``; return its status, or that of the exception it raises
-    (``STATUSES``, plus ``command.invalid`` as invalid input) after printing the message."""
+def run_command(command, args: Namespace, program: bool = False) -> int:
+    """Run ``command.handler(args)`` inside the shared hardening (``_guard``: the numeric options
+    checked, the output probed and locked, SIGINT / SIGTERM as ``Interrupted``); return its
+    status, or that of the exception it raises (``STATUSES``, plus ``command.invalid`` as invalid
+    input) after printing the message.  ``program``: run as the ``mpmjax`` program, with the
+    signal watchdog (``_guard.Watchdog``)."""
+    from . import _guard  # _guard imports UsageError from here
+
+    # the watchdog's line is formatted when it fires: a handler may set args.out (run: runs/SCENE)
+    watchdog = _guard.Watchdog(lambda: command.interrupted.format(**vars(args))) if program else None
     try:
-        return command.handler(args)
+        with _guard.interrupt_signals():
+            _guard.check_options(args)
+            with _guard.guarded_output(command, args):
+                return command.handler(args)
     except (Exception, KeyboardInterrupt) as e:
         found = status_of(e, command.invalid)
         if found is None:
             raise
         status, message = found
-        notes = {k: getattr(command, k).format(**vars(args)) for k in ("interrupted", "failed")}
+        if watchdog is not None and not watchdog.close():
+            threading.Event().wait()  # the watchdog is ending the process with its own line
+        notes = {k: getattr(command, k).format(**vars(args)) for k in ("interrupted", "failed")}  # args.out as set
         print(message(e, notes), file=sys.stderr)
         return status
