@@ -35,6 +35,7 @@ import os
 import re
 import sys
 import time
+import zipfile
 from functools import partial
 from pathlib import Path
 
@@ -174,6 +175,7 @@ def sweep(
     parameters of the scene."""
     overrides = list(overrides or [])
     cfg = mpmjax.load_scene(scene, overrides)
+    mpmjax.check_memory(cfg)  # before anything is built: a case that cannot fit is refused (MemoryRefused, exit 2)
     setup = mpmjax.build(cfg)
     fields = type(setup.params.material)._fields
     for k in vary:
@@ -406,10 +408,17 @@ def merge_parts(folder) -> dict:
         )
     parts = []
     for i in range(n_jobs):
-        with np.load(found[(i, n_jobs)]) as z:
-            doc = json.loads(str(z["shared"]))
-            doc.update({k: z[k] for k in PER_CASE})
-            doc["cases"] = [dict(zip(doc["vary"], map(float, row), strict=True)) for row in z["cases"]]
+        path = found[(i, n_jobs)]
+        try:
+            with np.load(path) as z:
+                doc = json.loads(str(z["shared"]))
+                doc.update({k: z[k] for k in PER_CASE})
+                doc["cases"] = [dict(zip(doc["vary"], map(float, row), strict=True)) for row in z["cases"]]
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(
+                f"{path}: not a readable part of `mpmjax sweep --shard` ({type(e).__name__}: {e}); rerun job {i} "
+                f"with --shard {i}/{n_jobs}"
+            ) from None
         parts.append(doc)
     first = parts[0]
     for i, d in enumerate(parts[1:], 1):

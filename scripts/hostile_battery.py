@@ -37,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TWIN = str(ROOT / "data" / "twin-small-dambreak.toml")
 SMALL = ["domain.cell_size_m=0.06", "time.t_end_s=0.3", "time.n_frames=3"]
 SETS = [a for s in SMALL for a in ("--set", s)]
+RUN_SETS = ["--set", "domain.cell_size_m=0.04", "--set", "time.t_end_s=0.3", "--set", "time.n_frames=3"]
 PROFILE = "x_m,h_m,t_s\n0.0,0.1,0.3\n0.1,0.08,0.3\n0.2,0.05,0.3\n0.3,0.02,0.3\n0.4,0.0,0.3\n"
 
 
@@ -89,7 +90,7 @@ def _checkpoint(damage):
         code = (
             "import sys, mpmjax\n"
             "def stop(i, st):\n    raise KeyboardInterrupt\n"
-            f"try:\n    mpmjax.run_scene('dambreak-lab', {str(Path(tmp) / 'r')!r}, {SMALL!r}, quiet=True, "
+            f"try:\n    mpmjax.run_scene('dambreak-lab', {str(Path(tmp) / 'r')!r}, {RUN_SETS[1::2]!r}, quiet=True, "
             "on_frame=stop)\nexcept KeyboardInterrupt:\n    pass\n"
         )
         subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=_env(), check=True, capture_output=True)
@@ -236,7 +237,7 @@ def sweep_cases():
 
 
 def run_cases():
-    base = ["run", "dambreak-lab", "--quiet", "--no-animation", *SETS]
+    base = ["run", "dambreak-lab", "--quiet", "--no-animation", *RUN_SETS]
     cases = []
 
     def c(name, extra, names, setup=None, argv=None, **kw):
