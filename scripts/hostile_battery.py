@@ -8,7 +8,8 @@ key or file it blames).  A case is counted as
 
 * clean: the expected status, no traceback, a status-2 message of one line that names the culprit;
 * traceback: a Python traceback on stderr (or status 1, a bug);
-* silent acceptance: exit 0 where the input should have been refused;
+* silent acceptance: exit 0 where the input should have been refused, or still running after the
+  case's timeout (30 s: a refusal comes in seconds);
 * wrong status: another status (a crash code such as 139, a hang stopped by the battery's
   timeout, an interrupt that did not stop the process within the case's limit);
 * unclear message: the right status, but the message does not name the culprit or is not one line.
@@ -51,7 +52,7 @@ class Case:
     setup: Callable | None = None  # setup(tmp) before the command
     signal_at: tuple | None = None  # (stderr text to wait for, delay [s] after it, signal)
     stop_within_s: float = 20.0  # after the signal
-    timeout_s: float = 120.0
+    timeout_s: float = 30.0  # a refusal comes in seconds: a case still running then has accepted its input
     env: dict = dataclasses.field(default_factory=dict)
 
 
@@ -339,6 +340,8 @@ def run_case(case: Case, tmp: Path) -> dict:
     except subprocess.TimeoutExpired as e:
         rc, err = "timeout", (e.stderr or b"").decode(errors="replace") if isinstance(e.stderr, bytes) else (
             e.stderr or "")
+        if "Traceback" not in err and case.expect == 2:
+            rc = "running"  # still working on input it should have refused
     finally:
         while HOLDERS:
             p = HOLDERS.pop()
@@ -349,7 +352,7 @@ def run_case(case: Case, tmp: Path) -> dict:
     last = lines[-1] if lines else ""
     if "Traceback" in err or rc == 1:
         verdict = "traceback"
-    elif rc == 0 and case.expect != 0:
+    elif (rc == 0 or rc == "running") and case.expect != 0:
         verdict = "silent acceptance"
     elif rc != case.expect or stopped_late:
         verdict = "wrong status"
