@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
 import select
@@ -149,17 +150,40 @@ def guarded_output(command, args):
                     folder.rmdir()  # only if empty: the command wrote nothing
 
 
+RECEIVED: list = []  # the signals ``interrupt_signals`` has seen in this command
+
+
+def interrupted_by() -> int | None:
+    """The signal that interrupted the command, if one did.  An ``Interrupted`` raised inside a
+    ``jax.pure_callback`` (the calibration's model evaluations) reaches the command as the
+    callback's ``XlaRuntimeError``; ``_status.run_command`` maps it back through this."""
+    return RECEIVED[0] if RECEIVED else None
+
+
+class _QuietAfterSignal(logging.Filter):
+    """Drops jax's "callback failed" traceback once a signal has been received (the interrupt it
+    reports is the command's, which prints its own line)."""
+
+    def filter(self, record):
+        return not RECEIVED
+
+
 @contextlib.contextmanager
 def interrupt_signals():
     """SIGINT and SIGTERM raise ``Interrupted`` (``_status`` maps it to 128 + the signal) while the
     command runs; the previous handlers afterwards.  Only in the main thread (Python delivers
     signals there only)."""
+    RECEIVED.clear()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
+        RECEIVED.append(signum)
         raise Interrupted(signum)
+
+    quiet = _QuietAfterSignal()
+    logging.getLogger("jax._src.callback").addFilter(quiet)
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -167,6 +191,7 @@ def interrupt_signals():
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+        logging.getLogger("jax._src.callback").removeFilter(quiet)
 
 
 GRACE_S = 5.0  # the time the main thread has to act on a signal before the watchdog ends the process

@@ -83,6 +83,9 @@ def run_command(command, args: Namespace, program: bool = False) -> int:
             with _guard.guarded_output(command, args):
                 return command.handler(args)
     except (Exception, KeyboardInterrupt) as e:
+        signum = _guard.interrupted_by()
+        if signum is not None and not isinstance(e, KeyboardInterrupt):
+            e = Interrupted(signum)  # raised inside a jax callback, it arrives as the callback's error
         found = status_of(e, command.invalid)
         if found is None:
             raise
