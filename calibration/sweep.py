@@ -227,7 +227,9 @@ def sweep(
         idx = np.minimum(np.arange(b * ch, (b + 1) * ch), n - 1)  # pad with the last case
         lanes = {f: np.broadcast_to(a, (ch,) + a.shape).copy() for f, a in base.items()}
         lanes.update({k: cols[k][idx] for k in vary})
-        out = layout.gather(_batch(layout.put(mat0._replace(**lanes)), *shared, **how))
+        # wait in block_until_ready, which lets the signal handlers run (Ctrl-C within seconds, issue 35);
+        # converting the result waits holding the interpreter, and a signal waited for the whole batch
+        out = layout.gather(jax.block_until_ready(_batch(layout.put(mat0._replace(**lanes)), *shared, **how)))
         results.append(jax.tree.map(lambda a, m=min(ch, n - b * ch): a[:m], out))
         if say:
             el = time.perf_counter() - t0
