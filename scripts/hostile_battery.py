@@ -198,7 +198,8 @@ def calibrate_cases():
     c("--set n_frames with 10000 digits", ["--set", "time.n_frames=" + "9" * 10000] + out, ("time.n_frames",))
     # valid input that must be accepted
     cases.append(Case("runout series past the last profile time (valid)", "calibrate",
-                      base + ["--runout-series", "{tmp}/rs.csv"] + out, expect=0,
+                      ["calibrate", "{tmp}/p.csv", "--scene", TWIN, "--fit", "mu0", "--levels", "1", "--max-iter", "1",
+                       "--quiet", "--set", "domain.cell_size_m=0.06", "--runout-series", "{tmp}/rs.csv"] + out, expect=0,
                       setup=_all(data, _write("rs.csv", "t_s,x_front_m\n0.1,0.25\n0.2,0.3\n0.3,0.32\n0.45,0.33\n")),
                       names=(), timeout_s=240))
     return cases

@@ -37,7 +37,12 @@ from pathlib import Path
 from .._driver import Interrupted, OutputError, OutputLock, check_output_folder
 from .._driver.folder import make_output_folder
 from .._driver.signals import held
-from ._status import UsageError
+
+
+class UsageError(Exception):
+    """Invalid input found while a handler converts its options: exit status ``USAGE_ERROR``
+    (``_status``, which re-exports it)."""
+
 
 RANGES = "_option_ranges"  # the Namespace attribute that carries the declared ranges (dest -> (flag, Range))
 

@@ -23,15 +23,13 @@ from calibration.distributed import DistributedError
 from .._driver import Interrupted, OutputFailure
 from .._health import RunFailure
 from .._schema import SceneError
+from . import _guard
+from ._guard import UsageError
 
 USAGE_ERROR = 2  # invalid input: the message names the key or option, the value and the allowed range
 FAILED = 3  # a run stopped by a failed health check; a stress or validate case missed its criteria
 OUTPUT_FAILED = 4  # a run stopped because its output could not be written (OutputFailure)
 SIGINT_STATUS = 130  # 128 + SIGINT: Ctrl-C outside a run's own handler (KeyboardInterrupt)
-
-
-class UsageError(Exception):
-    """Invalid input found while a handler converts its options: exit status ``USAGE_ERROR``."""
 
 
 def _interrupted(e, notes):
@@ -73,8 +71,6 @@ def run_command(command, args: Namespace, program: bool = False) -> int:
     status, or that of the exception it raises (``STATUSES``, plus ``command.invalid`` as invalid
     input) after printing the message.  ``program``: run as the ``mpmjax`` program, with the
     signal watchdog (``_guard.Watchdog``)."""
-    from . import _guard  # _guard imports UsageError from here
-
     # the watchdog's line is formatted when it fires: a handler may set args.out (run: runs/SCENE)
     watchdog = _guard.Watchdog(lambda: command.interrupted.format(**vars(args))) if program else None
     try:
