@@ -426,8 +426,7 @@ def _fit_names(fit, method, gradient) -> list:
 def _scene_levels(scene, overrides, data_times, init, levels, refine, profile, profile_options, refine_max_iter):
     """(the coarsest level's scene config, the overrides every level shares, the cell sizes)."""
     cfg0, overrides = _scene_overrides(scene, overrides, data_times, init)
-    if profile:
-        check_profile_options(*profile_options, "--profile-")
+    check_profile_options(*profile_options, "--profile-")  # also without --profile: a bad value is refused, not ignored
     if refine_max_iter is not None and refine_max_iter < 1:
         raise ValueError(f"--refine-max-iter = {refine_max_iter}; allowed range: integer >= 1")
     levels = _levels(levels, refine, float(cfg0["domain.cell_size_m"]))

@@ -137,6 +137,7 @@ def test_a_hostile_second_data_file_is_named(capsys, tmp_path, data, monkeypatch
         (["--bandwidth-m", "0"], ("--bandwidth-m = 0.0", "> 0")),
         (["--init", "mu0=1e9"], ("error: --init mu0=1000000000.0: ", "needs mu0 <= mu_max")),
         (["--runout-m", "-1"], ("--runout-m = -1.0", ">= 0")),
+        (["--profile-points", "4"], ("--profile-points = 4", "odd integer >= 3")),  # without --profile too
     ],
 )
 def test_an_option_is_blamed_on_itself(capsys, tmp_path, data, nothing_built, extra, words):
