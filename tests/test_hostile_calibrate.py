@@ -137,6 +137,8 @@ def test_a_hostile_second_data_file_is_named(capsys, tmp_path, data, monkeypatch
         (["--bandwidth-m", "0"], ("--bandwidth-m = 0.0", "> 0")),
         (["--init", "mu0=1e9"], ("error: --init mu0=1000000000.0: ", "needs mu0 <= mu_max")),
         (["--runout-m", "-1"], ("--runout-m = -1.0", ">= 0")),
+        (["--bounds", "mu0=5:1"], ("--bounds 'mu0=5:1'", "finite LO < HI")),
+        (["--bounds", "mu0=nan:1"], ("--bounds 'mu0=nan:1'", "finite LO < HI")),
         (["--profile-points", "4"], ("--profile-points = 4", "odd integer >= 3")),  # without --profile too
     ],
 )

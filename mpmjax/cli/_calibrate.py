@@ -4,6 +4,7 @@ option parsers and the ``jax.distributed`` options that ``design`` and ``sweep``
 
 from __future__ import annotations
 
+import math
 import sys
 
 import jax
@@ -43,8 +44,10 @@ def names(text) -> list:
 def _bounds(text):
     if ":" not in text:
         raise ValueError("expected LO:HI, e.g. 0.1:100")
-    lo, hi = text.split(":", 1)
-    return float(lo), float(hi)
+    lo, hi = (float(v) for v in text.split(":", 1))
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"allowed: finite LO < HI [SI], e.g. 0.1:100; got LO = {lo!r}, HI = {hi!r}")
+    return lo, hi
 
 
 def _transform(text):
