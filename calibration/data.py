@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import math
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -65,6 +66,38 @@ class Profile:
 
     def __post_init__(self):
         _check_profile(self.x_m, self.h_m, self.sigma_m, self.t_s, self.source or "profile", rows=None)
+
+
+def check_file(path) -> Path:
+    """``path`` as a ``Path`` if it is a regular file; ``DataError`` naming it otherwise (missing, a
+    folder, a FIFO or device: reading one of those could hang or fail with an unnamed error)."""
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except OSError as e:
+        raise DataError(f"{path}: cannot be read ({e.strerror or e})") from None
+    if not stat.S_ISREG(mode):
+        kind = "a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "not a regular file"
+        raise DataError(f"{path}: is {kind}; allowed: a regular CSV or HDF5 file")
+    return path
+
+
+def text_lines(path: Path) -> list[tuple[int, str]]:
+    """(line number, line) of the lines of a text file that are neither blank nor ``#`` comments;
+    ``DataError`` naming the file where it is not UTF-8 text (a binary file, a Latin-1 export)."""
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            return [(i + 1, ln) for i, ln in enumerate(f) if ln.strip() and not ln.lstrip().startswith("#")]
+    except UnicodeDecodeError as e:
+        line = path.read_bytes()[: e.start].count(b"\n") + 1
+        raise DataError(
+            f"{path}: line {line}: byte 0x{e.object[e.start]:02x} is not UTF-8 text; allowed: a UTF-8 (or ASCII) CSV "
+            "file (save it as UTF-8; a binary file is not a CSV)"
+        ) from None
+    except OSError as e:
+        raise DataError(f"{path}: cannot be read ({e.strerror or e})") from None
 
 
 def _fmt_where(src, name, where):
@@ -123,8 +156,7 @@ def _parse_float(src, row, col, text):
 
 def _load_csv(path: Path) -> list[Profile]:
     src = str(path)
-    with open(path, newline="") as f:
-        lines = [(i + 1, ln) for i, ln in enumerate(f) if ln.strip() and not ln.lstrip().startswith("#")]
+    lines = text_lines(path)
     if not lines:
         raise DataError(f"{src}: no header line; expected columns x_m, h_m [, t_s, sigma_m]")
     reader = csv.reader([ln for _, ln in lines])
@@ -243,9 +275,7 @@ def load_profiles(path) -> list[Profile]:
     Returns the profiles sorted by time (a final profile without time last).  Raises
     :class:`DataError` with the file, field, position, value and allowed range.
     """
-    path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
+    path = check_file(path)
     suffix = path.suffix.lower()
     if suffix == ".csv":
         profs = _load_csv(path)
@@ -261,6 +291,11 @@ def load_profiles(path) -> list[Profile]:
     ts = [p.t_s for p in profs if p.t_s is not None]
     if len(set(ts)) != len(ts):
         raise DataError(f"{path}: two profiles share the time t_s; use one profile per time")
+    if ts and len(ts) == len(profs) and max(ts) == 0:
+        raise DataError(
+            f"{path}: t_s = 0 in every row: every profile is the initial state, which no parameter changes; allowed: "
+            "at least one profile after the release (t_s > 0 [s]), or no t_s column (the final deposit)"
+        )
     return sorted(profs, key=lambda p: (p.t_s is None, p.t_s or 0.0))
 
 
@@ -292,6 +327,7 @@ def write_profiles_csv(path, profiles, header_comment: str = ""):
 # the whole file) may be a column or an HDF5 attribute; so may the kind's sigma column (a
 # scalar attribute applies to every row).
 TABLES = {
+    "flow curve": (("gamma_dot_1_s", "tau_pa"), ()),
     "runout series": (("t_s", "x_front_m"), ("sigma_m", "weight")),
     "rest times": (("t_rest_s", "t_s", "x_front_m"), ("sigma_m", "lambda_rest", "weight")),
     "shear history": (("test", "t_s", "gamma_dot_1_s"), ("tau_pa", "sigma_ln", "weight")),
@@ -345,16 +381,13 @@ def read_table(path, kind: str) -> Table:
     (one 1-D dataset per column, all of one length; a column may instead be a scalar root
     attribute, which applies to every row; a ``units`` attribute, when present, is checked).
     Unknown columns are an error; every value must be a number."""
-    path = Path(path)
+    path = check_file(path)
     src = str(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
     req, opt = TABLES[kind]
     allowed = req + opt
     suffix = path.suffix.lower()
     if suffix == ".csv":
-        with open(path, newline="") as f:
-            lines = [(i + 1, ln) for i, ln in enumerate(f) if ln.strip() and not ln.lstrip().startswith("#")]
+        lines = text_lines(path)
         if not lines:
             raise DataError(f"{src}: no header line; expected columns {', '.join(req)} [, {', '.join(opt)}]")
         rows = list(csv.reader([ln for _, ln in lines]))
@@ -599,6 +632,16 @@ def load_shear_tests(path) -> tuple[list[ShearTest], float | None]:
             )
         )
     return tests, t.scalar("weight")
+
+
+def load_flow_curve(path) -> tuple[np.ndarray, np.ndarray]:
+    """Rheometer flow-curve points (columns gamma_dot_1_s [1/s] > 0, tau_pa [Pa] > 0; CSV or HDF5,
+    :func:`read_table`) as (shear rates, stresses)."""
+    t = read_table(path, "flow curve")
+    c = t.cols
+    t.check("gamma_dot_1_s", c["gamma_dot_1_s"] > 0, "> 0 and finite [1/s]")
+    t.check("tau_pa", c["tau_pa"] > 0, "> 0 and finite [Pa]")
+    return c["gamma_dot_1_s"], c["tau_pa"]
 
 
 def write_table_csv(path, columns: dict, header_comment: str = ""):

@@ -20,7 +20,7 @@ import numpy as np
 
 import mpmjax
 
-from .data import DataError, load_profiles
+from .data import DataError, load_flow_curve, load_profiles
 from .design import (
     ProfileRequest,
     design,
@@ -32,7 +32,7 @@ from .design import (
 )
 from .experiments import FlowCurveExperiment, ProfileExperiment
 from .params import UNITS, ParameterSet
-from .run import _load_flow_curve, _scene_overrides
+from .run import _scene_overrides
 
 REQUIRED = object()
 # kind -> key -> (type, unit, default, meaning); default REQUIRED: must be given; None: see meaning
@@ -205,7 +205,7 @@ def run_design(
     bw = bandwidth_m
     current = [ProfileExperiment(setup, profiles, bandwidth_m=bw, sigma_m=sigma_m, name=Path(data).name)]
     if flow_curve:
-        current.append(FlowCurveExperiment(setup.params.material, *_load_flow_curve(flow_curve),
+        current.append(FlowCurveExperiment(setup.params.material, *load_flow_curve(flow_curve),
                                            name=Path(flow_curve).name))
     # candidate profile noise: as calibrate's default for the data in hand
     data_sigma = [float(np.median(p.sigma_m)) for p in profiles if p.sigma_m is not None]

@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 import mpmjax
+from mpmjax import STEPS_WARN, check_memory, estimate_run_time_s
 
 from . import report
-from .data import DataError, load_profiles, load_rest_times, load_runout_series, load_shear_tests
+from .data import load_flow_curve, load_profiles, load_rest_times, load_runout_series, load_shear_tests
 from .distributed import check_join_options, is_writer, join, make_local_devices
 from .experiments import (
     FlowCurveExperiment,
@@ -163,21 +164,6 @@ def _levels(levels, refine: int | None, h0: float) -> list:
     return [h0 / 2**i for i in range(refine + 1)]
 
 
-def _load_flow_curve(path):
-    path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
-    rows = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    head = [c.strip() for c in rows[0].split(",")]
-    if sorted(head) != ["gamma_dot_1_s", "tau_pa"]:
-        raise DataError(f"{path}: columns {head}; expected gamma_dot_1_s, tau_pa")
-    try:
-        a = np.asarray([[float(v) for v in r.split(",")] for r in rows[1:]])
-    except ValueError as e:
-        raise DataError(f"{path}: {e}") from None
-    return a[:, head.index("gamma_dot_1_s")], a[:, head.index("tau_pa")]
-
-
 def _scene_overrides(scene, overrides, times_s, init):
     """(scene config, overrides) for ``scene`` with the ``KEY=VALUE`` list ``overrides``: frames
     aligned to the data times ``times_s`` [s] (unless the user set time.t_end_s or time.n_frames)
@@ -187,10 +173,15 @@ def _scene_overrides(scene, overrides, times_s, init):
     cfg0 = mpmjax.load_scene(scene, overrides)
     if not ({"time.t_end_s", "time.n_frames"} & keys):
         t_end, nf = frames_for(list(times_s), cfg0["time.t_end_s"], cfg0["time.n_frames"])
-        overrides += [f"time.t_end_s={t_end!r}", f"time.n_frames={nf}"]
+        overrides += [f"time.t_end_s={float(t_end)!r}", f"time.n_frames={int(nf)}"]  # plain numbers, not np.float64
     for k, v in init.items():
         if k in FIELD_KEYS:
-            overrides.append(f"{FIELD_KEYS[k]}={v!r}")  # validated as a scene value (range errors name the key)
+            ov = f"{FIELD_KEYS[k]}={float(v)!r}"
+            try:  # validated as a scene value, one at a time: the message names the --init item and the key
+                mpmjax.load_scene(scene, overrides + [ov])
+            except mpmjax.SceneError as e:
+                raise ValueError(f"--init {k}={v!r}: {e}") from None
+            overrides.append(ov)
     return cfg0, overrides
 
 
@@ -435,8 +426,7 @@ def _fit_names(fit, method, gradient) -> list:
 def _scene_levels(scene, overrides, data_times, init, levels, refine, profile, profile_options, refine_max_iter):
     """(the coarsest level's scene config, the overrides every level shares, the cell sizes)."""
     cfg0, overrides = _scene_overrides(scene, overrides, data_times, init)
-    if profile:
-        check_profile_options(*profile_options, "--profile-")
+    check_profile_options(*profile_options, "--profile-")  # also without --profile: a bad value is refused, not ignored
     if refine_max_iter is not None and refine_max_iter < 1:
         raise ValueError(f"--refine-max-iter = {refine_max_iter}; allowed range: integer >= 1")
     levels = _levels(levels, refine, float(cfg0["domain.cell_size_m"]))
@@ -447,7 +437,30 @@ def _scene_levels(scene, overrides, data_times, init, levels, refine, profile, p
             cfgs.append(mpmjax.load_scene(scene, overrides + [f"domain.cell_size_m={h!r}"]))
         except mpmjax.SceneError as e:
             raise ValueError(f"--levels / --refine: cell size {h:g} m: {e}") from None
+    check_memory(cfgs[-1])  # the finest level, before anything is built: one that cannot fit is refused (exit 2)
     return cfgs[0], overrides, levels
+
+
+def _check_reach(setup, runout_m, latest, time_set: bool) -> None:
+    """``ValueError`` for a ``--runout-m`` beyond the domain, and for data times that need more than
+    ``STEPS_WARN`` steps per model evaluation (``latest``: (time [s], file) of the latest data time;
+    unless the user set the run's length with --set)."""
+    sc, info = setup.scene, setup.info
+    axis = info["runout_axis"]
+    reach = float(sc.hi[axis]) - float(info["runout_origin_m"])
+    if runout_m is not None and runout_m > reach:
+        raise ValueError(
+            f"--runout-m = {runout_m!r} is invalid: allowed range: 0 .. {reach:g} m (from the runout origin "
+            f"{float(info['runout_origin_m']):g} m to the domain's end along axis {axis})"
+        )
+    if not time_set and latest is not None and sc.n_steps > STEPS_WARN:
+        t, src = latest
+        raise ValueError(
+            f"{src}: t_s = {t:g} s needs {sc.n_steps:.3g} steps of {sc.dt:.3g} s for every model evaluation (about "
+            f"{estimate_run_time_s(sc.n_particles, sc.n_steps, sc.dim):.3g} s each on a CPU); allowed: data times the "
+            f"run reaches in at most {STEPS_WARN:.0e} steps (t_s <= {STEPS_WARN * sc.dt:.3g} s), or set "
+            "time.t_end_s with --set to fit it anyway"
+        )
 
 
 def calibrate(
@@ -511,6 +524,7 @@ def calibrate(
     three or more free parameters, else 1; fit.json's ``optima`` lists every distinct optimum
     and its loss, with a warning where two within the noise level disagree."""
     out = Path(out)
+    overrides_given = list(overrides or [])
     join(join_options(coordinator, num_processes, process_id, distributed))  # before any JAX computation
     writer = is_writer()  # only process 0 writes --out and prints progress
     log = (lambda *a: None) if quiet or not writer else (lambda *a: print(*a, file=sys.stderr))
@@ -519,6 +533,10 @@ def calibrate(
     )
     data_times = [p.t_s for p in profiles] + (list(series.t_s) if series else [])
     data_times += [float(t) for r in rests or [] for t in r.t_s]
+    sources = [(p.t_s, str(data)) for p in profiles if p.t_s is not None]
+    sources += [(float(t), str(runout_series)) for t in (series.t_s if series else [])]
+    sources += [(float(t), str(rest_times)) for r in rests or [] for t in r.t_s]
+    latest = max(sources, default=None)
     names = _fit_names(fit, method, gradient)
     budget = DEFAULT_LEVEL_BUDGET_S if level_budget_s is None else float(level_budget_s)
     if not (budget > 0 and np.isfinite(budget)):
@@ -529,6 +547,8 @@ def calibrate(
         (profile_points, profile_width, profile_max_iter), refine_max_iter,
     )
     setup = mpmjax.build(cfg)
+    time_set = any(o.split("=", 1)[0].strip() in ("time.t_end_s", "time.n_frames") for o in overrides_given or [])
+    _check_reach(setup, runout_m, latest, time_set)
     pset = ParameterSet.from_names(
         names, setup.params.material, init=init, bounds=dict(bounds or {}), transforms=dict(transforms or {})
     )
@@ -536,7 +556,7 @@ def calibrate(
     # the observable is the same at every level: bandwidth and runout sigma fixed in metres
     bandwidth_m = bandwidth_m if bandwidth_m is not None else levels[0]
     runout_sigma_m = runout_sigma_m if runout_sigma_m is not None else 2 * levels[0]
-    flow = _load_flow_curve(flow_curve) if flow_curve else None
+    flow = load_flow_curve(flow_curve) if flow_curve else None
     make = _Experiments(
         profiles, data, bandwidth_m, runout_m, runout_sigma_m, sigmas, weights, series, runout_series, rests,
         rest_times, lambda_rest, shear, transient, flow, flow_curve,

@@ -35,6 +35,7 @@ import os
 import re
 import sys
 import time
+import zipfile
 from functools import partial
 from pathlib import Path
 
@@ -174,6 +175,7 @@ def sweep(
     parameters of the scene."""
     overrides = list(overrides or [])
     cfg = mpmjax.load_scene(scene, overrides)
+    mpmjax.check_memory(cfg)  # before anything is built: a case that cannot fit is refused (MemoryRefused, exit 2)
     setup = mpmjax.build(cfg)
     fields = type(setup.params.material)._fields
     for k in vary:
@@ -225,7 +227,9 @@ def sweep(
         idx = np.minimum(np.arange(b * ch, (b + 1) * ch), n - 1)  # pad with the last case
         lanes = {f: np.broadcast_to(a, (ch,) + a.shape).copy() for f, a in base.items()}
         lanes.update({k: cols[k][idx] for k in vary})
-        out = layout.gather(_batch(layout.put(mat0._replace(**lanes)), *shared, **how))
+        # wait in block_until_ready, which lets the signal handlers run (Ctrl-C within seconds, issue 35);
+        # converting the result waits holding the interpreter, and a signal waited for the whole batch
+        out = layout.gather(jax.block_until_ready(_batch(layout.put(mat0._replace(**lanes)), *shared, **how)))
         results.append(jax.tree.map(lambda a, m=min(ch, n - b * ch): a[:m], out))
         if say:
             el = time.perf_counter() - t0
@@ -406,10 +410,17 @@ def merge_parts(folder) -> dict:
         )
     parts = []
     for i in range(n_jobs):
-        with np.load(found[(i, n_jobs)]) as z:
-            doc = json.loads(str(z["shared"]))
-            doc.update({k: z[k] for k in PER_CASE})
-            doc["cases"] = [dict(zip(doc["vary"], map(float, row), strict=True)) for row in z["cases"]]
+        path = found[(i, n_jobs)]
+        try:
+            with np.load(path) as z:
+                doc = json.loads(str(z["shared"]))
+                doc.update({k: z[k] for k in PER_CASE})
+                doc["cases"] = [dict(zip(doc["vary"], map(float, row), strict=True)) for row in z["cases"]]
+        except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(
+                f"{path}: not a readable part of `mpmjax sweep --shard` ({type(e).__name__}: {e}); rerun job {i} "
+                f"with --shard {i}/{n_jobs}"
+            ) from None
         parts.append(doc)
     first = parts[0]
     for i, d in enumerate(parts[1:], 1):

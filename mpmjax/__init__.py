@@ -11,7 +11,8 @@ Public API (modules are private; names are re-exported here):
   parameter NamedTuples; adding a law: ``Law``, ``Param``, ``Option``, ``Internal``,
   ``register_law``, ``unregister_law``; ``material_parameters()`` (name -> ``Param``: scene
   key, unit, default, range, calibration bounds), ``law_of(params)``
-* time step: ``time_step_limits``
+* time step: ``time_step_limits``; cost before a run is built: ``check_memory`` (refuses with
+  ``MemoryRefused``, a ``SceneError``), ``STEPS_WARN`` and ``estimate_run_time_s``
 * observables: ``runout``; differentiable ``height_profile``, ``smooth_front``,
   ``deposited_volume``, ``particle_volume``, ``gaussian_kernel``; metrics ``kinetic_energy``,
   ``time_to_rest``
@@ -27,9 +28,9 @@ from ._fusion import prefer_xla_reductions
 prefer_xla_reductions()  # before any JAX computation starts the backends (docs/performance.md, "Fusion boundaries")
 
 from . import plotting  # noqa: E402  (imports matplotlib only when a plot is made)
-from ._build import Setup, build, make_params, time_step_limits
+from ._build import STEPS_WARN, Setup, build, estimate_run_time_s, make_params, time_step_limits
 from ._constitutive import tait_pressure
-from ._driver import Interrupted, run_scene
+from ._driver import Interrupted, MemoryRefused, check_memory, run_scene
 from ._health import RunFailure
 from ._io import atomic_write_text
 from ._metrics import kinetic_energy, time_to_rest
@@ -59,8 +60,8 @@ from ._rheology import (
     law_of,
 )
 from ._rheology import parameters as material_parameters
-from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
 from ._scene import Gate, Params, Scene, State, Wall, init_state, restate
+from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
 from ._simulate import Frame, make_advance, make_chunk, run, simulate
 from ._step import make_step
 from ._transfer import flat_transfers, make_p2g
@@ -68,6 +69,10 @@ from ._version import __version__ as __version__  # re-exported
 
 __all__ = [
     "SCHEMA",
+    "STEPS_WARN",
+    "MemoryRefused",
+    "check_memory",
+    "estimate_run_time_s",
     "SceneError",
     "validate",
     "Setup",

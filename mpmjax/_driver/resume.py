@@ -11,6 +11,7 @@ from pathlib import Path
 import h5py
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .. import _hazard
 from .._io import _jsonable, read_checkpoint
@@ -48,9 +49,63 @@ def read_for_resume(out: Path, lock) -> tuple:
             + ("the run there is already complete; nothing to resume" if done else f"no {ckpt_path.name} there")
         )
     try:
-        return read_checkpoint(ckpt_path)
-    except (OSError, KeyError, ValueError) as e:
-        raise SceneError(f"--resume {out}: {ckpt_path} cannot be read: {e}") from None
+        ckpt = read_checkpoint(ckpt_path)
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        raise SceneError(f"--resume {out}: {ckpt_path} cannot be read: {type(e).__name__}: {e}") from None
+    _check_meta(ckpt_path, ckpt)
+    return ckpt
+
+
+# what a checkpoint's metadata must hold (``Checkpointer.meta_base`` and ``acc``), with its type
+_META = {"scene_source": str, "overrides": list, "cfg": dict, "acc": dict}
+_ACC = ("times", "fronts", "farthest", "kinetic", "lost_reported", "n_outflow", "wall_s", "mass0")
+
+
+def _damaged(path, what) -> SceneError:
+    return SceneError(
+        f"--resume: the checkpoint {path} is damaged: {what}; allowed: a checkpoint written by mpmjax run (rerun "
+        "without --resume to start again)"
+    )
+
+
+def _check_meta(path: Path, ckpt: tuple) -> None:
+    """``SceneError`` naming the checkpoint and the damage where its frame or metadata are not what a
+    run writes (a frame < 0, a missing or mistyped entry)."""
+    _, frame, _, meta = ckpt
+    if frame < 0:
+        raise _damaged(path, f"frame = {frame} (allowed: >= 0)")
+    if not isinstance(meta, dict):
+        raise _damaged(path, f"its metadata is a {type(meta).__name__}, not a table")
+    for k, t in _META.items():
+        if not isinstance(meta.get(k), t):
+            raise _damaged(path, f"metadata entry {k!r} is {'missing' if k not in meta else type(meta[k]).__name__}")
+    missing = [k for k in _ACC if k not in meta["acc"] and k != "farthest"]  # "farthest": restore() explains
+    if missing:
+        raise _damaged(path, f"the series entries {', '.join(missing)} are missing from its metadata")
+    times = meta["acc"]["times"]
+    if not isinstance(times, list) or len(times) != frame + 1:
+        held = f"{len(times)} frames" if isinstance(times, list) else f"a {type(times).__name__}"
+        raise _damaged(path, f"frame = {frame}, but its series hold {held}, not frames 0 .. {frame}")
+
+
+def check_checkpoint(out: Path, ckpt: tuple, setup) -> None:
+    """``SceneError`` naming the checkpoint unless its frame is within the scene's run and its state
+    arrays have the shapes and dtypes of the built scene's (checked before the state is used)."""
+    path = out / CHECKPOINT_NAME
+    state, frame = ckpt[0], ckpt[1]
+    n_frames = setup.scene.n_frames
+    if frame > n_frames:
+        raise _damaged(path, f"frame = {frame} is past the run's last frame {n_frames}")
+    for name, want in setup.state._asdict().items():
+        got = getattr(state, name, None)
+        if want is None or isinstance(want, dict):
+            continue
+        want_shape, want_dtype = np.shape(want), np.asarray(want).dtype
+        if got is None or np.shape(got) != want_shape or np.asarray(got).dtype != want_dtype:
+            what = "missing" if got is None else f"{np.asarray(got).dtype}{list(np.shape(got))}"
+            raise _damaged(
+                path, f"state array {name} is {what}; the scene's is {want_dtype}{list(want_shape)}"
+            )
 
 
 def check_same_scene(out: Path, ckpt: tuple, cfg: dict, chash: str, source: str, overrides: list) -> None:

@@ -22,6 +22,7 @@ from .resume import (
     CHECKPOINT_EVERY,
     CHECKPOINT_NAME,
     Checkpointer,
+    check_checkpoint,
     check_same_scene,
     read_for_resume,
     restore,
@@ -98,6 +99,8 @@ def _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame,
     use_devices(cfg["numerics.devices"])  # first: on a CPU, host devices can be made only before JAX starts
     check_memory(cfg)  # before anything is built: a run that cannot fit is refused (exit 2)
     setup = build(cfg)
+    if ckpt is not None:
+        check_checkpoint(out, ckpt, setup)  # its frame and array shapes, before the state is used
     make_output_folder(out)
     lock.acquire()  # before anything in the folder is created or truncated
     log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))

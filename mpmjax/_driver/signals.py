@@ -16,6 +16,14 @@ class Interrupted(KeyboardInterrupt):
         self.signum, self.message = signum, message
 
 
+_ACTIVE: list = []  # the Signals installed now (a run's), for ``held``
+
+
+def held() -> bool:
+    """Whether a run is writing a frame, a checkpoint or its closing files now (signals held back)."""
+    return any(s.depth for s in _ACTIVE)
+
+
 class Signals:
     """Turn SIGINT/SIGTERM into ``Interrupted`` and hold them back while a frame and its
     checkpoint are being written (``with sig.hold():``), so that the files on disk always
@@ -26,6 +34,7 @@ class Signals:
         self.pending = None
         self.depth = 0
         self.old = {}
+        _ACTIVE.append(self)
         if threading.current_thread() is threading.main_thread():
             for s in (signal.SIGINT, signal.SIGTERM):
                 self.old[s] = signal.signal(s, self._handler)
@@ -53,3 +62,6 @@ class Signals:
     def restore(self):
         for s, h in self.old.items():
             signal.signal(s, h)
+        self.old = {}
+        if self in _ACTIVE:
+            _ACTIVE.remove(self)

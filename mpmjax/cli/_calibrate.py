@@ -4,6 +4,7 @@ option parsers and the ``jax.distributed`` options that ``design`` and ``sweep``
 
 from __future__ import annotations
 
+import math
 import sys
 
 import jax
@@ -14,7 +15,7 @@ from calibration.coverage import summary_lines as coverage_summary
 from calibration.fit import DEFAULT_STARTS, MULTISTART_MIN_PARAMS
 from calibration.run import DEFAULT_LEVEL_BUDGET_S, DEFAULT_REFINE, MAX_REFINE, SIGMA_UNITS, calibrate
 
-from ._status import UsageError
+from ._guard import number
 
 TRANSFORM_CHOICES = ("log", "softplus", "linear", "identity")
 
@@ -43,8 +44,10 @@ def names(text) -> list:
 def _bounds(text):
     if ":" not in text:
         raise ValueError("expected LO:HI, e.g. 0.1:100")
-    lo, hi = text.split(":", 1)
-    return float(lo), float(hi)
+    lo, hi = (float(v) for v in text.split(":", 1))
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"allowed: finite LO < HI [SI], e.g. 0.1:100; got LO = {lo!r}, HI = {hi!r}")
+    return lo, hi
 
 
 def _transform(text):
@@ -63,8 +66,8 @@ def add_distributed_arguments(p) -> None:
     g.add_argument(
         "--coordinator", metavar="HOST:PORT", help="address of process 0 and a free TCP port, e.g. node001:12345"
     )
-    g.add_argument("--num-processes", type=int, metavar="N", help="number of processes of the job (>= 1)")
-    g.add_argument("--process-id", type=int, metavar="I", help="this process's index, 0 .. N-1")
+    number(g, "--num-processes", type=int, lo=1, metavar="N", help="number of processes of the job (>= 1)")
+    number(g, "--process-id", type=int, lo=0, metavar="I", help="this process's index, 0 .. N-1")
     g.add_argument(
         "--distributed",
         action="store_true",
@@ -96,24 +99,27 @@ def add_calibrate_arguments(p) -> None:
         help="lm: Levenberg-Marquardt (optimistix; default: a few iterations for a least-squares fit), "
         "lbfgs or adam (optax)",
     )
-    p.add_argument("--max-iter", type=int, default=50, help="maximum iterations (default 50)")
-    p.add_argument("--learning-rate", type=float, default=0.05, help="Adam step in ln(parameter) (default 0.05)")
-    p.add_argument(
+    number(p, "--max-iter", type=int, lo=1, default=50, help="maximum iterations (default 50)")
+    number(p, "--learning-rate", lo=0, lo_open=True, default=0.05, help="Adam step in ln(parameter) (default 0.05)")
+    number(
+        p,
         "--rtol",
-        type=float,
+        lo=0,
         default=1e-4,
         help="stop when the loss falls by less than this (relative) over --patience iterations, and with lm "
         "also when the Gauss-Newton step predicts a relative decrease below it (default 1e-4)",
     )
-    p.add_argument("--patience", type=int, default=5, help="iterations for the rtol test (default 5)")
-    p.add_argument(
+    number(p, "--patience", type=int, lo=1, default=5, help="iterations for the rtol test (default 5)")
+    number(
+        p,
         "--starts",
         type=int,
+        lo=1,
         help="multi-start: number of starts, stepped in lockstep with one compiled model (default "
         f"{DEFAULT_STARTS} for {MULTISTART_MIN_PARAMS} or more free parameters, else 1); fit.json lists every "
         "distinct optimum",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed of the extra starts")
+    number(p, "--seed", type=int, lo=0, default=0, help="random seed of the extra starts")
     p.add_argument(
         "--gradient",
         default="auto",
@@ -127,12 +133,24 @@ def add_calibrate_arguments(p) -> None:
 
 def _add_measurement_arguments(p) -> None:
     """The measurements besides the profiles, their noise levels and weights."""
-    p.add_argument(
-        "--sigma-m", type=float, help="profile standard deviation [m] where the data give none (default 5%% of max h)"
+    number(
+        p,
+        "--sigma-m",
+        lo=0,
+        lo_open=True,
+        unit="m",
+        help="profile standard deviation [m] where the data give none (default 5%% of max h)",
     )
-    p.add_argument("--bandwidth-m", type=float, help="kernel bandwidth of the model profile [m] (default: cell size)")
-    p.add_argument("--runout-m", type=float, help="also fit a measured final runout [m]")
-    p.add_argument("--runout-sigma-m", type=float, help="its standard deviation [m] (default 2 cells)")
+    number(
+        p,
+        "--bandwidth-m",
+        lo=0,
+        lo_open=True,
+        unit="m",
+        help="kernel bandwidth of the model profile [m] (default: cell size)",
+    )
+    number(p, "--runout-m", lo=0, unit="m", help="also fit a measured final runout [m]")
+    number(p, "--runout-sigma-m", lo=0, lo_open=True, unit="m", help="its standard deviation [m] (default 2 cells)")
     p.add_argument("--flow-curve", help="also fit rheometer flow-curve points: CSV with gamma_dot_1_s, tau_pa")
     p.add_argument(
         "--runout-series",
@@ -146,9 +164,11 @@ def _add_measurement_arguments(p) -> None:
         help="also fit repeated releases of the scene after rests (initial structure lambda_rest + t_rest/T): "
         "CSV/HDF5 with t_rest_s [s], t_s [s], x_front_m [m] [, sigma_m [m], lambda_rest, weight]",
     )
-    p.add_argument(
+    number(
+        p,
         "--lambda-rest",
-        type=float,
+        lo=0,
+        unit="-",
         help="structure when the rests of --rest-times began [-] (default: the material's lambda0, fitted or fixed)",
     )
     p.add_argument(
@@ -190,10 +210,13 @@ def _add_level_arguments(p) -> None:
         "estimated) or the cell sizes [m] to fit at, coarse to fine, e.g. 0.02,0.01 (replaces --refine; default: "
         "two levels, the scene's cell size h and h/2)",
     )
-    p.add_argument("--refine-max-iter", type=int, help="maximum iterations at each finer level (default: --max-iter)")
-    p.add_argument(
+    number(p, "--refine-max-iter", type=int, lo=1, help="maximum iterations at each finer level (default: --max-iter)")
+    number(
+        p,
         "--level-budget-s",
-        type=float,
+        lo=0,
+        lo_open=True,
+        unit="s",
         help="a finer level estimated to take longer than this [s] is announced with its cost before it starts "
         f"(default {DEFAULT_LEVEL_BUDGET_S:g})",
     )
@@ -261,7 +284,7 @@ def cmd_calibrate(args) -> int:
 
 def add_coverage_arguments(p) -> None:
     """``mpmjax calibrate-coverage``: the coverage study of ``calibration.coverage``."""
-    p.add_argument("--twins", type=int, default=2, help="number of twins (default 2)")
+    number(p, "--twins", type=int, lo=1, default=2, help="number of twins (default 2)")
     p.add_argument("--fit", default="mu0", help="comma-separated parameters (default mu0)")
     p.add_argument("--size", default="ci", choices=sorted(COVERAGE_SIZES), help="study size (default ci)")
     p.add_argument("--levels", help="passed to calibrate (default: its default, two levels)")
@@ -271,8 +294,6 @@ def add_coverage_arguments(p) -> None:
 
 def cmd_coverage(args) -> int:
     """Run the coverage study (float64, as the fits' tests) and print its summary."""
-    if args.twins < 1:
-        raise UsageError(f"--twins = {args.twins} is invalid: allowed range: >= 1")
     jax.config.update("jax_enable_x64", True)
     kw = {} if args.levels is None else {"levels": args.levels}
     doc = coverage_study(

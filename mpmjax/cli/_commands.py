@@ -9,6 +9,7 @@ import dataclasses
 from collections.abc import Callable
 
 from . import _calibrate, _design, _rheometer, _run, _studies, _sweep, _validate
+from ._guard import program_exit
 from ._status import run_command
 
 
@@ -17,7 +18,8 @@ class Command:
     """One ``mpmjax`` command.  ``invalid``: exception classes that count as invalid input (exit
     status 2) besides those of ``_status.STATUSES``; ``interrupted`` / ``failed``: the line printed
     on an interrupt (130, or 128 + the signal) / after a failed health check's message (3), saying
-    what was kept, formatted with the parsed options (``{out}``)."""
+    what was kept, formatted with the parsed options (``{out}``); ``output`` / ``out_default``:
+    how the shared hardening (``_guard``) vets and locks ``--out`` before the handler runs."""
 
     name: str
     help: str
@@ -26,6 +28,8 @@ class Command:
     invalid: tuple[type[Exception], ...] = ()
     interrupted: str = "interrupted"
     failed: str = ""
+    output: str = ""  # what --out names: "folder" (probed and locked) or "file" (probed); "": neither (_guard)
+    out_default: str = ""  # the option whose value --out defaults to (sweep-merge: the parts' folder)
 
 
 _KEPT = "interrupted: files already written in {out} are kept"
@@ -51,6 +55,7 @@ COMMANDS = (
         "0-D Coussot rheometer: viscosity vs time and flow curves",
         _rheometer.add_rheometer_arguments,
         _rheometer.cmd_rheometer,
+        output="folder",
     ),
     Command(
         "bench",
@@ -58,6 +63,7 @@ COMMANDS = (
         _studies.add_bench_arguments,
         _studies.cmd_bench,
         invalid=(ValueError,),
+        output="file",
     ),
     Command(
         "stress",
@@ -66,6 +72,7 @@ COMMANDS = (
         _studies.cmd_stress,
         invalid=(ValueError,),
         interrupted="interrupted: finished cases remain in {out}",
+        output="file",
     ),
     Command(
         "records",
@@ -74,6 +81,7 @@ COMMANDS = (
         _studies.cmd_records,
         invalid=(ValueError,),
         failed="the records measured before it are in {out}/records.md",
+        output="folder",
     ),
     Command(
         "pareto",
@@ -81,6 +89,7 @@ COMMANDS = (
         _studies.add_pareto_arguments,
         _studies.cmd_pareto,
         interrupted="interrupted: the runs finished so far remain in the JSON",
+        output="folder",
     ),
     Command(
         "converge",
@@ -88,6 +97,7 @@ COMMANDS = (
         _validate.add_converge_arguments,
         _validate.cmd_converge,
         interrupted=_RERUN.format("runs"),
+        output="folder",
     ),
     Command(
         "validate",
@@ -95,6 +105,7 @@ COMMANDS = (
         _validate.add_validate_arguments,
         _validate.cmd_validate,
         interrupted=_RERUN.format("cases"),
+        output="folder",
     ),
     Command(
         "study",
@@ -102,6 +113,7 @@ COMMANDS = (
         _studies.add_study_arguments,
         _studies.cmd_study,
         invalid=(ValueError,),
+        output="folder",
     ),
     Command(
         "calibrate",
@@ -110,6 +122,7 @@ COMMANDS = (
         _calibrate.cmd_calibrate,
         invalid=(ValueError,),
         interrupted=_KEPT,
+        output="folder",
     ),
     Command(
         "calibrate-coverage",
@@ -118,6 +131,7 @@ COMMANDS = (
         _calibrate.cmd_coverage,
         invalid=(ValueError,),
         interrupted=_KEPT,
+        output="folder",
     ),
     Command(
         "design",
@@ -126,6 +140,7 @@ COMMANDS = (
         _design.cmd_design,
         invalid=(ValueError,),
         interrupted=_KEPT,
+        output="folder",
     ),
     Command(
         "sweep",
@@ -134,6 +149,7 @@ COMMANDS = (
         _sweep.cmd_sweep,
         invalid=(ValueError,),
         interrupted=_KEPT,
+        output="folder",
     ),
     Command(
         "sweep-merge",
@@ -142,6 +158,8 @@ COMMANDS = (
         _sweep.cmd_sweep_merge,
         invalid=(ValueError,),
         interrupted=_KEPT,
+        output="folder",
+        out_default="parts",
     ),
 )
 
@@ -160,6 +178,11 @@ def make_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """``mpmjax ARGS``: parse, run the command's handler, return its exit status (``_status``)."""
+    """``mpmjax ARGS``: parse, run the command's handler, return its exit status (``_status``).
+    Without ``argv`` (the ``mpmjax`` program) an interrupted command ends the process itself and a
+    signal the main thread cannot see in time is acted on by the watchdog (``_guard.program_exit``,
+    ``_guard.Watchdog``); with ``argv`` (from Python) the status is returned."""
+    program = argv is None
     args = make_parser().parse_args(argv)
-    return run_command(args.command, args)
+    status = run_command(args.command, args, program=program)
+    return program_exit(status) if program else status

@@ -12,6 +12,7 @@ from __future__ import annotations
 from calibration.design_run import check_candidate, run_design
 
 from ._calibrate import kv, names
+from ._guard import number
 
 
 def _list(text, flag):
@@ -61,21 +62,24 @@ def add_design_arguments(p) -> None:
     p.add_argument("--estimate", metavar="FIT_JSON", help="the current estimate: a fit.json of mpmjax calibrate")
     p.add_argument("--init", action="append", metavar="NAME=VALUE", help="estimate [SI] (overrides --estimate)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scene override, e.g. domain.cell_size_m=0.02")
-    p.add_argument("--sigma-m", type=float, help="noise of the data in hand [m] where they give none")
-    p.add_argument("--bandwidth-m", type=float, help="kernel bandwidth of the model profile [m] (default: cell size)")
+    number(p, "--sigma-m", lo=0, lo_open=True, unit="m", help="noise of the data in hand [m] where they give none")
+    number(p, "--bandwidth-m", lo=0, lo_open=True, unit="m",
+           help="kernel bandwidth of the model profile [m] (default: cell size)")
     p.add_argument("--flow-curve", help="rheometer flow-curve points in hand: CSV with gamma_dot_1_s, tau_pa")
     p.add_argument(
         "--candidates", metavar="TOML", help="candidate measurements ([[candidate]] tables, docs/calibration.md)"
     )
     p.add_argument("--profile-times", metavar="T1,T2", help="candidate profiles at these times [s]")
     p.add_argument("--station-spacing-m", metavar="S1,S2", help="their station spacing(s) [m] (default 2 cells)")
-    p.add_argument("--profile-sigma-m", type=float, help="their height noise [m] (default: the data's)")
-    p.add_argument("--runout-sigma-m", type=float, help="candidate: the final runout, with this noise [m]")
+    number(p, "--profile-sigma-m", lo=0, lo_open=True, unit="m", help="their height noise [m] (default: the data's)")
+    number(p, "--runout-sigma-m", lo=0, lo_open=True, unit="m", help="candidate: the final runout, with this noise [m]")
     p.add_argument("--shear-rates", metavar="R1,R2", help="candidate rheometer transients, one per rate [1/s]")
     p.add_argument("--rest-times", metavar="S1,S2", help="shear them after these rests [s] (0: from lambda0)")
-    p.add_argument("--transient-t-end-s", type=float, default=60.0, help="length of each transient [s] (default 60)")
-    p.add_argument("--transient-points", type=int, default=30, help="samples per transient (default 30, log-spaced)")
-    p.add_argument("--sigma-ln", type=float, default=0.05, help="relative noise of rheometer data (default 0.05)")
+    number(p, "--transient-t-end-s", lo=0, lo_open=True, unit="s", default=60.0,
+           help="length of each transient [s] (default 60)")
+    number(p, "--transient-points", type=int, lo=2, default=30, help="samples per transient (default 30, log-spaced)")
+    number(p, "--sigma-ln", lo=0, lo_open=True, unit="-", default=0.05,
+           help="relative noise of rheometer data (default 0.05)")
     p.add_argument("--dambreak-rest-times", metavar="S1,S2",
                    help="candidate: the dam break repeated after these rests [s], profiles at --profile-times")
     p.add_argument(

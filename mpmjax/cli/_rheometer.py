@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import math
-import os
 
 import jax
 import numpy as np
@@ -97,9 +96,7 @@ def cmd_rheometer(args) -> int:
         )
     rates = _parse_rates(args.rates)
     t_end = _parse_number("--t-end", args.t_end)
-    out = str(args.out)
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise UsageError(f"--out: {out!r} exists and is not a directory")
+    out = str(args.out)  # probed and locked by the shared hardening (_guard)
 
     jax.config.update("jax_enable_x64", True)
     params = make_params(**vals)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .._driver import ANIMATION_MAX_FRAMES, CHECKPOINT_EVERY, run_scene
 from .._schema import _REQ, SCHEMA, builtin_scenes
+from ._guard import number
 from ._status import UsageError
 
 
@@ -43,17 +44,21 @@ def add_run_arguments(p) -> None:
     p.add_argument(
         "--set", action="append", metavar="KEY=VALUE", help="override a scene key, e.g. material.mu0_pa_s=2"
     )
-    p.add_argument(
+    number(
+        p,
         "--devices",
         type=int,
+        lo=1,
         metavar="N",
         help="split the run's particles over N devices (numerics.devices; on a CPU: N host devices, one per core); "
         "the grid is replicated, or cut into slabs with --set numerics.decomposition=slab",
     )
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument(
+    number(
+        p,
         "--checkpoint-every",
         type=int,
+        lo=0,
         default=CHECKPOINT_EVERY,
         metavar="N",
         help=f"write OUT/checkpoint.h5 every N frames (default {CHECKPOINT_EVERY}; 0: only on interrupt)",
@@ -81,10 +86,6 @@ def _out_folder(args) -> Path:
 
 
 def cmd_run(args) -> int:
-    if args.checkpoint_every < 0:
-        raise UsageError(
-            f"--checkpoint-every = {args.checkpoint_every} is invalid: allowed range: >= 0 frames (0: never)"
-        )
     args.out = _out_folder(args)  # the interrupt and failure messages of the command table name it
     overrides = list(args.set or []) + ([f"numerics.devices={args.devices}"] if args.devices is not None else [])
     run_scene(

@@ -14,6 +14,7 @@ calibration commands, whose library reports bad values with it), ``interrupted``
 from __future__ import annotations
 
 import sys
+import threading
 from argparse import Namespace
 
 from calibration.data import DataError
@@ -22,15 +23,13 @@ from calibration.distributed import DistributedError
 from .._driver import Interrupted, OutputFailure
 from .._health import RunFailure
 from .._schema import SceneError
+from . import _guard
+from ._guard import UsageError
 
 USAGE_ERROR = 2  # invalid input: the message names the key or option, the value and the allowed range
 FAILED = 3  # a run stopped by a failed health check; a stress or validate case missed its criteria
 OUTPUT_FAILED = 4  # a run stopped because its output could not be written (OutputFailure)
 SIGINT_STATUS = 130  # 128 + SIGINT: Ctrl-C outside a run's own handler (KeyboardInterrupt)
-
-
-class UsageError(Exception):
-    """Invalid input found while a handler converts its options: exit status ``USAGE_ERROR``."""
 
 
 def _interrupted(e, notes):
@@ -66,16 +65,29 @@ def status_of(e: BaseException, invalid: tuple = ()) -> tuple[int, object] | Non
     return None
 
 
-def run_command(command, args: Namespace) -> int:
-    """Run ``command.handler(args)``; return its status, or that of the exception it raises
-    (``STATUSES``, plus ``command.invalid`` as invalid input) after printing the message."""
+def run_command(command, args: Namespace, program: bool = False) -> int:
+    """Run ``command.handler(args)`` inside the shared hardening (``_guard``: the numeric options
+    checked, the output probed and locked, SIGINT / SIGTERM as ``Interrupted``); return its
+    status, or that of the exception it raises (``STATUSES``, plus ``command.invalid`` as invalid
+    input) after printing the message.  ``program``: run as the ``mpmjax`` program, with the
+    signal watchdog (``_guard.Watchdog``)."""
+    # the watchdog's line is formatted when it fires: a handler may set args.out (run: runs/SCENE)
+    watchdog = _guard.Watchdog(lambda: command.interrupted.format(**vars(args))) if program else None
     try:
-        return command.handler(args)
+        with _guard.interrupt_signals():
+            _guard.check_options(args)
+            with _guard.guarded_output(command, args):
+                return command.handler(args)
     except (Exception, KeyboardInterrupt) as e:
+        signum = _guard.interrupted_by()
+        if signum is not None and not isinstance(e, KeyboardInterrupt):
+            e = Interrupted(signum)  # raised inside a jax callback, it arrives as the callback's error
         found = status_of(e, command.invalid)
         if found is None:
             raise
         status, message = found
-        notes = {k: getattr(command, k).format(**vars(args)) for k in ("interrupted", "failed")}
+        if watchdog is not None and not watchdog.close():
+            threading.Event().wait()  # the watchdog is ending the process with its own line
+        notes = {k: getattr(command, k).format(**vars(args)) for k in ("interrupted", "failed")}  # args.out as set
         print(message(e, notes), file=sys.stderr)
         return status

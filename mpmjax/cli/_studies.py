@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..studies import bench, pareto, records, stress
 from ..studies.tables import run_study
+from ._guard import number
 from ._status import FAILED, UsageError
 
 
@@ -17,9 +18,9 @@ def _log(*a) -> None:
 
 def add_bench_arguments(p) -> None:
     p.add_argument("--out", default="bench.json", help="JSON file to write")
-    p.add_argument("--steps", type=int, default=2000, help="steps per measurement (default scene, mpm88)")
+    number(p, "--steps", type=int, lo=1, default=2000, help="steps per measurement (default scene, mpm88)")
     p.add_argument("--dtype", default="float32", choices=("float32", "float64"), help="default scene, mpm88, grad")
-    p.add_argument("--reps", type=int, default=3, help="timed repetitions per measurement, the best kept")
+    number(p, "--reps", type=int, lo=1, default=3, help="timed repetitions per measurement, the best kept")
     p.add_argument("--quick", action="store_true", help="tiny sizes and step counts (tests; not a benchmark)")
     p.add_argument(
         "--large", action="store_true", help="add 1e6 particles to the scaling runs (minutes per point on 2 cores)"

@@ -7,6 +7,7 @@ from calibration.distributed import parse_shard
 from calibration.sweep import merge_sweep, parse_vary, run_sweep
 
 from ._calibrate import add_distributed_arguments
+from ._guard import number
 
 
 def add_sweep_arguments(p) -> None:
@@ -19,12 +20,14 @@ def add_sweep_arguments(p) -> None:
         help="material parameter and its values [SI], e.g. n=1.5,2,2.5,3; repeat for a grid",
     )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scene override, e.g. time.t_end_s=5")
-    p.add_argument("--chunk", type=int, help="cases per vmap batch (default: as many as fit in a quarter of memory)")
+    number(p, "--chunk", type=int, lo=1, help="cases per vmap batch (default: as many as fit in a quarter of memory)")
     p.add_argument("--out", default="sweep-out", help="output folder (default sweep-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.add_argument(
+    number(
+        p,
         "--devices",
         type=int,
+        lo=1,
         metavar="N",
         help="on a CPU: make N host devices, one per core, and split the batch over them (default 1; on 2 cores "
         "a sweep of 16 cases ran 1.3-1.5x faster); the batch always uses every device the process has",

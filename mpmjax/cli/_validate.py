@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .._schema import SceneError, parse_override
 from ..studies import converge, validate
+from ._guard import number
 from ._status import FAILED, UsageError
 from ._studies import make_folders
 
@@ -27,10 +28,16 @@ def add_converge_arguments(p) -> None:
     p.add_argument(
         "--case", nargs="+", choices=sorted(converge.CASES), default=["lab", "slump", "water"], dest="cases"
     )
-    p.add_argument(
-        "--levels", type=int, default=None, help=f"number of cell sizes, halving (default {converge.LEVELS}; ci 3)"
+    number(
+        p,
+        "--levels",
+        type=int,
+        lo=2,
+        hi=6,
+        default=None,
+        help=f"number of cell sizes, halving (default {converge.LEVELS}; ci 3)"
     )
-    p.add_argument("--ppc", nargs="+", type=int, default=[1, 2, 3], help="particles per cell per axis to sweep")
+    number(p, "--ppc", nargs="+", type=int, lo=1, hi=4, default=[1, 2, 3], help="particles per cell per axis to sweep")
     p.add_argument(
         "--shapes", nargs="+", choices=converge.SHAPES, default=list(converge.SHAPES), help="shape functions to sweep"
     )
@@ -57,11 +64,6 @@ def cmd_converge(args) -> int:
             where = Path(args.out) / "bench" / "converge.json"
             raise UsageError(f"--report-only: {where} cannot be read: {e}") from None
         return 0
-    if args.levels is not None and not 2 <= args.levels <= 6:
-        raise UsageError(f"--levels = {args.levels} is invalid: allowed range 2..6")
-    bad = [p for p in args.ppc if not 1 <= p <= 4]
-    if bad:
-        raise UsageError(f"--ppc {bad[0]} is invalid: allowed range 1..4")
     make_folders(args.out)
     base = _numerics_overrides(args.set)
     for case in args.cases:

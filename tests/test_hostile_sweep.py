@@ -1,0 +1,95 @@
+"""Hostile input to ``mpmjax sweep`` and ``sweep-merge`` (issue 35's table): an unusable ``--out`` is
+refused before the sweep runs (it used to fail only after the whole sweep, losing it), a folder held
+by another command is refused, a sweep that cannot fit in memory is refused before anything is built,
+``--shard`` jobs share their folder without a lock, and a damaged part names its file."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+import mpmjax
+from mpmjax import cli
+from mpmjax._driver import LOCK_NAME, OutputLock
+
+ROOT = Path(__file__).resolve().parents[1]
+TWIN = str(ROOT / "data" / "twin-small-dambreak.toml")
+SWEEP = ["sweep", TWIN, "--vary", "n=2,3", "--quiet", "--set", "domain.cell_size_m=0.06"]
+
+
+@pytest.fixture
+def no_sweep(monkeypatch):
+    """The sweep itself fails the test if it starts: every refusal comes first."""
+    monkeypatch.setattr("mpmjax.cli._sweep.run_sweep", lambda *a, **k: pytest.fail("the sweep ran"))
+
+
+def _refused(capsys, argv, *words):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    for w in words:
+        assert w in err, (w, err)
+
+
+@pytest.mark.parametrize(
+    "out,words",
+    [
+        ("{tmp}/afile", ("--out", "is an existing file")),
+        ("{tmp}/afile/sub", ("--out", "not a folder")),
+        ("/proc/mpmjax-none/o", ("--out", "cannot be created")),
+        ("", ("--out ''", "empty")),
+    ],
+)
+def test_an_unusable_out_is_refused_before_the_sweep_runs(capsys, tmp_path, no_sweep, out, words):
+    (tmp_path / "afile").write_text("keep me")
+    _refused(capsys, [*SWEEP, "--out", out.format(tmp=tmp_path)], *words)
+    assert (tmp_path / "afile").read_text() == "keep me"
+
+
+def test_a_held_folder_is_refused(capsys, tmp_path, no_sweep):
+    out = tmp_path / "o"
+    out.mkdir()
+    lock = OutputLock(out)
+    lock.acquire()
+    try:
+        _refused(capsys, [*SWEEP, "--out", str(out)], f"process {os.getpid()}")
+    finally:
+        lock.release()
+
+
+def test_shard_jobs_share_their_folder(capsys, tmp_path, monkeypatch):
+    """Jobs of one --shard array write one folder together: no lock is taken for them."""
+    out = tmp_path / "o"
+    out.mkdir()
+    lock = OutputLock(out)
+    lock.acquire()
+    seen = []
+    monkeypatch.setattr("mpmjax.cli._sweep.run_sweep", lambda *a, **k: seen.append(k["shard"]))
+    try:
+        assert cli.main([*SWEEP, "--out", str(out), "--shard", "0/2"]) == 0
+    finally:
+        lock.release()
+    assert seen == [(0, 2)]
+
+
+def test_a_sweep_that_cannot_fit_is_refused_before_it_is_built(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("MPMJAX_MEMORY_LIMIT_GB", "1e-6")
+    monkeypatch.setattr(mpmjax, "build", lambda *a: pytest.fail("built"))
+    _refused(capsys, [*SWEEP, "--out", str(tmp_path / "o")], "the run needs about", "MPMJAX_MEMORY_LIMIT_GB")
+    assert not (tmp_path / "o").exists()  # the folder made for the lock is removed again
+
+
+@pytest.mark.parametrize("content", [b"PK\x03\x04garbage", b"", b"\x93NUMPY not an npz"])
+def test_a_damaged_part_names_its_file(capsys, tmp_path, content):
+    parts = tmp_path / "parts"
+    parts.mkdir()
+    (parts / "part-0-of-1.npz").write_bytes(content)
+    _refused(capsys, ["sweep-merge", str(parts), "--quiet"], "part-0-of-1.npz", "not a readable part", "--shard 0/1")
+    assert sorted(p.name for p in parts.iterdir()) == [LOCK_NAME, "part-0-of-1.npz"]
+
+
+def test_parts_that_are_a_file_are_refused(capsys, tmp_path):
+    (tmp_path / "afile").write_text("x")
+    _refused(capsys, ["sweep-merge", str(tmp_path / "afile"), "--quiet"], "afile: not a folder")
