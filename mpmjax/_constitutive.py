@@ -104,9 +104,11 @@ def deviatoric_update(tau, L, dprime, mu, G, dt, method: str, rotation: str = "l
         # element elastic) 2 mu d' is far larger than any stress the element holds, and turning it
         # would inject mu |W| |d'| dt; capped, the turned part is bounded by 2 |tau| as with jaumann
         visc = 2.0 * mu[:, None, None] * dprime
-        size = lambda a: jnp.sqrt(jnp.sum(a * a, axis=(-2, -1)))  # noqa: E731
-        n_visc = size(visc)
-        cap = jnp.where(n_visc > size(tau), size(tau) / jnp.where(n_visc > 0.0, n_visc, 1.0), 1.0)
+        # _safe_sqrt: a zero stress (every particle at the start) must give a zero derivative, not NaN
+        n_tau = _safe_sqrt(jnp.sum(tau * tau, axis=(-2, -1)))
+        n_visc = _safe_sqrt(jnp.sum(visc * visc, axis=(-2, -1)))
+        over = n_visc > n_tau
+        cap = jnp.where(over, n_tau / jnp.where(over, n_visc, 1.0), 1.0)
         turned = tau - cap[:, None, None] * visc
     tau_rot = tau + dt * (_mm(W, turned) - _mm(turned, W))
     x = G * dt / mu

@@ -97,7 +97,7 @@ def test_calibrate_cli_bad_levels_exit_2_naming_the_option(tmp_path, capsys):
         (["--levels", "5"], "--levels = 5; allowed range: 1 .. 4 levels (a plain integer), or cell sizes [m]"),
         (["--levels", "0"], "--levels = 0; allowed range: 1 .. 4 levels"),
         (["--levels", "0.02,0.007"], "--levels / --refine: cell size 0.007 m: domain.cell_size_m = 0.007"),
-        (["--refine", "1", "--refine-max-iter", "0"], "--refine-max-iter = 0; allowed range: integer >= 1"),
+        (["--refine", "1", "--refine-max-iter", "0"], "--refine-max-iter = 0 is invalid: allowed range: integer >= 1"),
     ):
         assert main(base + extra) == 2, extra
         err = capsys.readouterr().err

@@ -154,7 +154,7 @@ def test_sweep_merge_cli_joins_parts_and_names_missing_ones(tmp_path, capsys):
         (["--coordinator", "h:1234"], "--num-processes, --process-id missing"),
         (["--shard", "2/2"], "--shard = '2/2' is invalid; allowed: I/N with N >= 1 jobs and 0 <= I <= N - 1"),
         (["--shard", "0/2", "--coordinator", "h:1234", "--num-processes", "2", "--process-id", "0"], "--shard and"),
-        (["--devices", "0"], "--devices = 0 is invalid; allowed range: integer 1 .. "),
+        (["--devices", "0"], "--devices = 0 is invalid: allowed range: integer >= 1"),
         (["--devices", "100000"], "--devices = 100000 is invalid; allowed range: integer 1 .. "),
     ],
 )

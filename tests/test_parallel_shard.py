@@ -101,10 +101,11 @@ def test_two_host_devices_give_the_one_device_gradient():
 
 
 def test_devices_bad_input(tmp_path, capsys):
-    """``--devices 0`` and devices with a pipe inflow stop with exit status 2 and a message naming the key."""
+    """``--devices 0`` and devices with a pipe inflow stop with exit status 2 and a message naming the
+    option (the CLI's range check, before the scene is built) or the key."""
     from mpmjax.cli import main
 
     assert main(["run", "dambreak-lab", "--devices", "0", "--out", str(tmp_path / "o")]) == 2
-    assert "numerics.devices = 0 is invalid: allowed range: >= 1" in capsys.readouterr().err
+    assert "--devices = 0 is invalid: allowed range: integer >= 1" in capsys.readouterr().err
     with pytest.raises(m.SceneError, match="numerics.devices = 2 is invalid with a pipe inflow"):
         m.load_scene("bingham-funnel", ["numerics.devices=2"])

@@ -57,6 +57,7 @@ class Range:
     lo_open: bool = False
     hi_open: bool = False
     unit: str = ""
+    integer: bool = False
 
     def text(self) -> str:
         parts = []
@@ -64,8 +65,9 @@ class Range:
             parts.append(f"{'>' if self.lo_open else '>='} {self.lo:g}")
         if self.hi is not None:
             parts.append(f"{'<' if self.hi_open else '<='} {self.hi:g}")
-        parts.append("finite")
-        return " and ".join(parts) + (f" [{self.unit}]" if self.unit else "")
+        if not self.integer:
+            parts.append("finite")
+        return ("integer " if self.integer else "") + " and ".join(parts) + (f" [{self.unit}]" if self.unit else "")
 
     def holds(self, x) -> bool:
         try:
@@ -84,7 +86,7 @@ def number(p, *flags, type=float, lo=None, hi=None, lo_open=False, hi_open=False
     ``check_options`` before the handler runs (also on each value of an ``nargs`` option)."""
     action = p.add_argument(*flags, type=type, **kw)
     ranges = dict(p.get_default(RANGES) or {})
-    ranges[action.dest] = (flags[0], Range(lo, hi, lo_open, hi_open, unit))
+    ranges[action.dest] = (flags[0], Range(lo, hi, lo_open, hi_open, unit, integer=type is int))
     p.set_defaults(**{RANGES: ranges})
     return action
 
