@@ -267,7 +267,7 @@ def coverage_study(
 
 def summary_lines(doc) -> list:
     s = doc["summary"]
-    out = [f"coverage: {s['n_twins']} twins ({s['n_failed']} failed), {s['wall_s']:.0f} s wall, {s['cpu_s']:.0f} s CPU"]
+    out = [f"coverage: {s['n_twins']} twin{'' if s['n_twins'] == 1 else 's'} ({s['n_failed']} failed), {s['wall_s']:.0f} s wall, {s['cpu_s']:.0f} s CPU"]
     for k in doc["settings"]["fit"]:
         p = s[k]
         parts = [
