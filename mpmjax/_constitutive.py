@@ -71,7 +71,7 @@ def _mm(A, B):
     return jnp.stack(rows, axis=1)
 
 
-def deviatoric_update(tau, L, dprime, mu, G, dt, method: str, rotation: str = "lag"):
+def deviatoric_update(tau, L, dprime, mu, G, dt, method: str, rotation: str):
     """Deviatoric stress update [Pa].
 
     ``maxwell``: a Maxwell element integrated exactly at constant d' over dt:

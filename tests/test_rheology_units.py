@@ -273,12 +273,12 @@ def test_maxwell_viscous_limit():
     mu = jnp.asarray([1e-3, 0.1, 0.3], F64)  # G dt/mu = 1.5e4, 150, 50: e^-50 ~ 2e-22
     tau0 = jnp.asarray(np.random.default_rng(0).normal(size=(3, 2, 2)) * 1e3, F64)
     tau0 = 0.5 * (tau0 + jnp.swapaxes(tau0, 1, 2))
-    tau = deviatoric_update(tau0, L, dprime, mu, G_MOD, dt, "maxwell")
+    tau = deviatoric_update(tau0, L, dprime, mu, G_MOD, dt, "maxwell", "lag")
     # The memory term |tau0| e^{-G dt/mu} <= 1e3 Pa * e^{-50} ~ 2e-19 Pa: atol 1e-15 Pa, and the
     # viscous part 2 mu d' (7e-3 .. 2.1 Pa) to round-off.
     np.testing.assert_allclose(np.asarray(tau), 2 * np.asarray(mu)[:, None, None] * np.asarray(dprime),
                                rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(np.asarray(deviatoric_update(tau0, L, dprime, mu, G_MOD, dt, "explicit")),
+    np.testing.assert_allclose(np.asarray(deviatoric_update(tau0, L, dprime, mu, G_MOD, dt, "explicit", "lag")),
                                2 * np.asarray(mu)[:, None, None] * np.asarray(dprime), rtol=RT_EXACT)
 
 
@@ -289,7 +289,7 @@ def test_maxwell_elastic_limit_and_bound():
     L, dprime = _shear_inputs(g)
     tau0 = jnp.zeros((1, 2, 2), F64)
     mu = jnp.asarray([1e8], F64)
-    tau = deviatoric_update(tau0, L, dprime, mu, G_MOD, dt, "maxwell")
+    tau = deviatoric_update(tau0, L, dprime, mu, G_MOD, dt, "maxwell", "lag")
     # x = G dt/mu = 1.5e-10: exactly, mu (1 - e^{-x}) = G dt (1 - x/2 + ...), and the engine's
     # 1 - e^{-x} by subtraction costs up to 1.1e-16/x = 7e-7 relative: rtol 1e-5.
     np.testing.assert_allclose(np.asarray(tau), 2 * G_MOD * dt * np.asarray(dprime), rtol=1e-5, atol=1e-12)
@@ -298,18 +298,18 @@ def test_maxwell_elastic_limit_and_bound():
     # test_maxwell_elastic_increment_float32_large_mu.)
     mus = jnp.asarray(np.geomspace(1e-6, 1e10, 200), F64)
     L, dprime = _shear_inputs(g, 200)
-    tau = deviatoric_update(jnp.zeros((200, 2, 2), F64), L, dprime, mus, G_MOD, dt, "maxwell")
+    tau = deviatoric_update(jnp.zeros((200, 2, 2), F64), L, dprime, mus, G_MOD, dt, "maxwell", "lag")
     bound = 2 * G_MOD * dt * g / 2  # |tau_xy| <= 2 G dt d'_xy, d'_xy = g/2
     # mu (1 - e^{-x}) = G dt (1 - e^{-x})/x <= G dt; the cancellation in 1 - e^{-x} costs
     # eps/x <= 2.2e-16 / 1.5e-9 ~ 1.5e-7 relative at mu = 1e10, hence 1e-6.
     assert np.all(np.abs(np.asarray(tau)[:, 0, 1]) <= bound * (1 + 1e-6))
-    explicit = deviatoric_update(jnp.zeros((200, 2, 2), F64), L, dprime, mus, G_MOD, dt, "explicit")
+    explicit = deviatoric_update(jnp.zeros((200, 2, 2), F64), L, dprime, mus, G_MOD, dt, "explicit", "lag")
     assert float(jnp.max(jnp.abs(explicit))) > 1e8 * bound  # 2 mu d' at mu = 1e10: 6.7e8 x bound
     # Jaumann rotation of an existing stress at mu = inf-like: tau* = tau + dt (W tau - tau W).
     tau0 = jnp.asarray([[[100.0, 0.0], [0.0, -100.0]]], F64)
     L0 = simple_shear_L(g, 2)
     zero_d = jnp.zeros((1, 2, 2), F64)
-    out = deviatoric_update(tau0, L0, zero_d, jnp.asarray([1e300], F64), G_MOD, dt, "maxwell")
+    out = deviatoric_update(tau0, L0, zero_d, jnp.asarray([1e300], F64), G_MOD, dt, "maxwell", "lag")
     W = 0.5 * (np.asarray(L0[0]) - np.asarray(L0[0]).T)
     np.testing.assert_allclose(np.asarray(out[0]), np.asarray(tau0[0]) + dt * (W @ tau0[0] - tau0[0] @ W), rtol=1e-14)
 
@@ -361,7 +361,7 @@ def _shear_wave(method, mu, rho, h, dt, n_steps, n_cells=16):
         gy = (jnp.roll(v, -1) - v) / h
         L = jnp.zeros((n_cells, 2, 2), F64).at[:, 0, 1].set(gy)
         dprime, _ = shear_measures(L, 2)
-        tau = deviatoric_update(tau, L, dprime, jnp.full((n_cells,), mu, F64), G_MOD, dt, method)
+        tau = deviatoric_update(tau, L, dprime, jnp.full((n_cells,), mu, F64), G_MOD, dt, method, "lag")
         txy = tau[:, 0, 1]
         v = v + dt / rho * (txy - jnp.roll(txy, 1)) / h
         return (v, tau), jnp.max(jnp.abs(v))
@@ -400,6 +400,6 @@ def test_maxwell_elastic_increment_float32_large_mu():
     L = jnp.zeros((4, 2, 2), f32).at[:, 0, 1].set(g)
     dprime, _ = shear_measures(L, 2)
     mu = jnp.asarray([1e6, 1e7, 1e8, 1e9], f32)
-    tau = deviatoric_update(jnp.zeros((4, 2, 2), f32), L, dprime, mu, G_MOD, dt, "maxwell")
+    tau = deviatoric_update(jnp.zeros((4, 2, 2), f32), L, dprime, mu, G_MOD, dt, "maxwell", "lag")
     assert tau.dtype == f32
     np.testing.assert_allclose(np.asarray(tau[:, 0, 1], np.float64), G_MOD * dt * g, rtol=1e-4)
