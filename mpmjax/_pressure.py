@@ -159,11 +159,18 @@ def condition_matrix(scene: Scene, linear_conditions) -> tuple[np.ndarray, bool]
     return Q, diagonal
 
 
-def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: int = CG_MAXITER):
+def make_projection(
+    scene: Scene, linear_conditions, fill: np.ndarray, maxiter: int = CG_MAXITER, constrained: bool = True
+):
     """``project(v_star, mass, inv_m, has, params, p_prev=None) -> (v, p, (A, b))``: the pressure
     step of the module docstring on the whole grid (flat node arrays (N,), (N, dim); p per cell,
     ``grid_shape``; A and b the solved system, for diagnostics).  ``p_prev``: the last step's
     pressure, the solve's start where it is not zero.
+
+    ``constrained=False``: v = v* + dt m^-1 B^T p without the walls' P, for a caller that applies its
+    walls' conditions to it afterwards (equal to P of it where those conditions are P's; Coulomb
+    terrain, which is not linear, then sees the pressure's normal impulse at its nodes and resists
+    sliding with it, as in the explicit step, where the particles' pressure reaches the wall nodes).
 
     ``linear_conditions(v) -> P v``: the walls' conditions, linear (``_step._linear_conditions``);
     ``fill``: the static ``_boundary.node_fill`` (N,).
@@ -295,7 +302,7 @@ def make_projection(scene: Scene, linear_conditions, fill: np.ndarray, maxiter: 
                 due = jnp.round(t / scene.dt).astype(jnp.int32) % POSITION_EVERY == 0
                 q = jax.lax.cond(due, lambda r: solve(r, jnp.zeros_like(r)), jnp.zeros_like, b_x)
         p = jnp.where(fluid, p, 0.0)
-        dv = S(grad(p))
+        dv = S(grad(p)) if constrained else [m_g * c for c in grad(p)]
         v = v_star + scene.dt * jnp.stack([c.reshape(-1) for c in dv], axis=-1)
         v = jnp.where(has[:, None], v, 0.0)
         if q is None:
