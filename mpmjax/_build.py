@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _bodies, _dem, _release, _rheology, _shapes
+from . import _bodies, _constitutive, _dem, _release, _rheology, _shapes
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -185,7 +185,8 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
     can reach; it binds only the explicit update.
     With the pressure solved on the grid (numerics.pressure = incompressible) the sound speed
     leaves c: c = sqrt(4/3 G / rho), and G = 0 in numerics.maxwell_shear_modulus_pa means
-    G = rho |v|^2 instead of kappa.
+    G = max(rho |v|^2, ``_constitutive.MAXWELL_YIELD_FACTOR`` tau_y) instead of kappa (tau_y the law's
+    yield stress, if any).
     """
     mat = params.material
     rho, kappa = float(mat.rho), float(mat.kappa)
@@ -208,9 +209,11 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, v: np.ndarray, rh
             )
         if implicit:
             # the pressure solved on the grid: only the Maxwell shear waves are explicit, and G = 0 means
-            # G = rho |v|^2, so that they are no faster than the flow and the step follows the flow speed
+            # G = rho |v|^2, so that they are no faster than the flow and the step follows the flow speed (and at
+            # least a multiple of the yield stress: _constitutive.MAXWELL_YIELD_FACTOR)
             if maxwell and not cfg["numerics.maxwell_shear_modulus_pa"]:
-                G = float(f64(rho) * f64(vscale) ** 2)
+                tau_y = float(rheology.yield_stress(mat))
+                G = float(max(f64(rho) * f64(vscale) ** 2, f64(_constitutive.MAXWELL_YIELD_FACTOR) * f64(tau_y)))
             c = float(np.sqrt(f64(4.0 / 3.0) * f64(G) / f64(rho)))
         dt_wave = float(f64(cfg["numerics.cfl"]) * f64(h) / (f64(c) + f64(vscale)))
         mu_max = float(rheology.max_viscosity(mat))

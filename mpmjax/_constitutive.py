@@ -19,6 +19,13 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+# numerics.pressure = incompressible, numerics.maxwell_shear_modulus_pa = 0: the Maxwell modulus is at least this many
+# times the law's yield stress, so that material held at its yield stress strains at most 1/20 = 5 % elastically.
+# With G = rho v^2 alone, a Bingham plug flow whose plug speed sets v had G below tau_y (the plug test channel:
+# G = 345 Pa, tau_y = 490 Pa) and lost every particle; a Bingham layer held on a slope by tau_y = 250 Pa strained
+# 12 % (1.6 cm at its surface).  Measured on that channel: plug speed +0.40 % at G = 4 tau_y, +0.015 % at 40 tau_y.
+MAXWELL_YIELD_FACTOR = 20.0
+
 # Tait-type EOS constant (thesis eq. 3.11, Macdonald 1969).
 TAIT_C = 0.0894
 

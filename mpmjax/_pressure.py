@@ -27,7 +27,9 @@ Here B v is the cell's volume rate, the integral over the cell of div v with the
 corner's sign vector; B^T p is the nodal force of the cell pressures.  S = P P^T with P the walls'
 linear conditions (noslip and the pipe's driven nodes: 0; slip, symmetry, Navier slip, slip and
 Coulomb terrain: remove the normal component), so A is symmetric positive semi-definite and the
-correction obeys the walls (a slip wall's separation and Coulomb friction are applied after it).
+correction obeys the walls (a slip wall's separation and Coulomb friction are applied after it;
+with Coulomb terrain the correction is applied unprojected, so that the friction sees the pressure's
+normal impulse, and P after the friction: ``make_projection``'s ``constrained``).
 
 Why Q1-P0: one pressure per cell against 2^d velocity nodes is one constraint per cell, a count
 that does not lock (the particles' J is a constraint per particle, ppc^d of them per cell: it

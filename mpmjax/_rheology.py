@@ -166,9 +166,7 @@ ALPHA = Param(
 RESTRUCTURING_TIME = Param(
     "T", "material.T_s", "s", "Coussot restructuring time T.", 0.5, lo=0.0, lo_open=True, bounds=(1e-3, 1e6)
 )
-EXPONENT = Param(
-    "n", "material.n", "-", "Coussot exponent n.", 2.5, lo=0.0, lo_open=True, hi=10.0, bounds=(0.05, 10.0)
-)
+EXPONENT = Param("n", "material.n", "-", "Coussot exponent n.", 2.5, lo=0.0, lo_open=True, hi=10.0, bounds=(0.05, 10.0))
 LAMBDA0 = Param(
     "lambda0", "material.lambda0", "-", "Coussot initial structure lambda0.", 1.5, lo=0.0, bounds=(1e-4, 1e4)
 )
@@ -327,6 +325,9 @@ class Law:
     options: ClassVar[tuple[Option, ...]] = ()
     internals: ClassVar[tuple[Internal, ...]] = ()
     max_viscosity_params: ClassVar[tuple[str, ...]] = ()
+    # the parameter holding the law's yield stress [Pa], if it has one (the incompressible step's default
+    # Maxwell modulus is at least MAXWELL_YIELD_FACTOR times it: ``_build.time_step_limits``)
+    yield_stress_param: ClassVar[str | None] = None
     # (lower, upper) parameter pairs that must satisfy lower <= upper (Coussot: mu0 <= mu_max,
     # a cap below the base viscosity would hold the whole material at the cap); checked by the
     # scene validation, which names both keys
@@ -361,6 +362,10 @@ class Law:
     def max_viscosity(self, params):
         """The largest viscosity [Pa s] the law can produce."""
         raise NotImplementedError
+
+    def yield_stress(self, params):
+        """The law's yield stress [Pa] (0 for a law without one)."""
+        return getattr(params, self.yield_stress_param) if self.yield_stress_param else 0.0
 
     def steady_internal(self, params, shear) -> dict:
         """The internal state reached at a constant shear rate (steady flow curve)."""
@@ -415,6 +420,7 @@ class Bingham(Law):
     params: ClassVar[tuple[Param, ...]] = (RHO, KAPPA, VISCOSITY, YIELD_STRESS, ALPHA_B, PAPANASTASIOU_M)
     options: ClassVar[tuple[Option, ...]] = (BINGHAM_VARIANT, SHEAR_MEASURE)
     max_viscosity_params: ClassVar[tuple[str, ...]] = ("mu", "tau_y", "m", "alpha_b")
+    yield_stress_param: ClassVar[str | None] = "tau_y"
 
     def mu(self, params, shear, internal):
         mu, ty = params.mu, params.tau_y
@@ -445,6 +451,7 @@ class HerschelBulkley(Law):
     params_type: ClassVar[type] = HerschelBulkleyParams
     params: ClassVar[tuple[Param, ...]] = (RHO, KAPPA, YIELD_STRESS, CONSISTENCY, FLOW_INDEX, PAPANASTASIOU_M, MU_MAX)
     max_viscosity_params: ClassVar[tuple[str, ...]] = ("mu_max",)
+    yield_stress_param: ClassVar[str | None] = "tau_y"
 
     def mu(self, params, shear, internal):
         g = jnp.maximum(shear, _GDOT_EPS)

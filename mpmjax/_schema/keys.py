@@ -7,7 +7,7 @@ import dataclasses
 import math
 from typing import Any
 
-from .. import _shapes
+from .. import _constitutive, _shapes
 from .._scene import FACE_KINDS
 
 
@@ -131,7 +131,9 @@ _HEAD: dict[str, Key] = {
         0.0,
         "Pa",
         "Maxwell regularisation modulus G; 0 means G = bulk modulus, or with numerics.pressure = incompressible "
-        "G = rho v^2, v the velocity scale of the time step, so that the shear waves are no faster than the flow.",
+        f"G = max(rho v^2, {_constitutive.MAXWELL_YIELD_FACTOR:g} tau_y), v the velocity scale of the time step (the "
+        "shear waves no faster than the flow) and tau_y the law's yield stress (so that material held at its yield "
+        f"stress strains at most {100 / _constitutive.MAXWELL_YIELD_FACTOR:g} % elastically).",
         lo=0.0,
     ),
     "numerics.velocity_scale_m_s": Key(
