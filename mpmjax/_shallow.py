@@ -286,7 +286,7 @@ def make_shallow_step(scene: Scene):
         ok = inside & finite
         lost_now = state.active & ~ok
         active = state.active & ok
-        Xs = jnp.clip(X_new, jnp.asarray(safe_lo, dtp), jnp.asarray(safe_hi, dtp))
+        Xs = jnp.clip(X_new, jnp.asarray(safe_lo, dtp)[None, :], jnp.asarray(safe_hi, dtp)[None, :])
         z = bed_at(scene, Xs, jnp) + 0.5 * H_p
         w_up = jnp.sum(u_new * grad_zb, axis=1)
         x3 = jnp.concatenate([X_new, z[:, None]], axis=1)
