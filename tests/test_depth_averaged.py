@@ -21,7 +21,9 @@ measured figures):
 * the gradient of the runout (the volume centroid's advance) with respect to the yield stress,
   by reverse mode through ``lax.scan``, against a central finite difference (float64; 1 %);
 * ``vmap`` over yield stresses equals the separate runs (1e-12 relative);
-* a viscous gravity current against Huppert's (1982) similarity solution (5 %).
+* a viscous gravity current against Huppert's (1982) similarity solution (5 %);
+* a twin back-analysis of the yield stress from a dam break's outline (5 %, the issue's target; measured
+  -2.6 %: the fit resolution's bias).
 """
 
 from __future__ import annotations
@@ -216,3 +218,47 @@ def test_vmap_equals_separate_runs(slump):
     for i, t in enumerate(taus):
         assert float(batched[i]) == pytest.approx(float(single(t)), rel=1e-12)
     assert float(batched[0]) > float(batched[1]) > float(batched[2])
+
+
+# ------------------------------------------------------------------------------ twin back-analysis
+
+
+def test_twin_back_analysis_recovers_the_yield_stress():
+    """Issue 33: a twin back-analysis recovers tau_y within 5 % from a runout outline.
+
+    Truth: the Bingham dam break of ``slump`` (tau_y = 20 Pa, mu = 0.5 Pa s, 0.3 m x 0.1 m against
+    a slip wall) run to t = 1 s at h = 5 mm; its outline at 1 s (the kernel height profile at
+    2 cm stations where it is over 2 mm, bandwidth 2 cm, sigma 2 mm) and its headline runout
+    (``free_surface_front``).  Fit: the same scene at h = 10 mm (not the truth's discretisation:
+    no inverse crime), Levenberg-Marquardt through ``calibration.fit`` (forward-mode Jacobian through
+    ``simulate``), from tau_y = 40 Pa (a factor 2 off).  Measured: 19.48 Pa (-2.6 %), the same to
+    1e-5 from 10 Pa, so the error is the coarser model's resolution bias, not the optimiser.
+    5 % is the issue's target.  At 1 s the front is slowing (0.85 m; it arrests at about 0.94 m
+    near 1.5 s, then creeps): the forward sensitivities through the arrest are not usable yet (at
+    2 s the Jacobian of the outline is at cosine 0.24 to a finite difference; at 1 s, 0.994),
+    so the fit is to the outline before arrest (docs/depth-averaged.md)."""
+    from calibration.data import Profile
+    from calibration.experiments import ProfileExperiment
+    from calibration.fit import fit
+    from calibration.params import ParameterSet
+    from mpmjax._observables import free_surface_front, height_profile
+
+    mat = {"model": "bingham", "viscosity_pa_s": 0.5, "yield_stress_pa": 20.0}
+
+    def setup(h):
+        return build(validate(_scene(mat, ([0.0, 0.0], [0.3, 0.1]), 1.0, h=h, ppc=4, length=1.2, n_frames=1)))
+
+    truth = setup(0.005)
+    fin, _ = _run(truth.scene, truth.state, truth.params)
+    xs = np.arange(0.01, 1.2, 0.02)
+    hp = np.asarray(height_profile(fin.x, fin.vol0, fin.active, jnp.asarray(xs), bandwidth=0.02))
+    on = hp > 0.002
+    runout = float(free_surface_front(fin.x, fin.vol0, fin.active, bandwidth=0.01, x_lo=0.0, x_hi=1.2))
+    assert 0.8 < runout < 0.9  # 0.85 m: the outline is of a flow that has spread, not of the initial block
+
+    coarse = setup(0.01)
+    exp = ProfileExperiment(coarse, [Profile(x_m=xs[on], h_m=hp[on])], bandwidth_m=0.02, sigma_m=0.002, runout_m=runout)
+    ps = ParameterSet.from_names(["tau_y"], coarse.params.material, init={"tau_y": 40.0})
+    r = fit([exp], ps, method="lm", max_iter=10, progress=False)
+    assert r.params["tau_y"] == pytest.approx(20.0, rel=0.05), r.params
+    assert r.loss_final < 1e-3 * r.loss_initial
