@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _bodies, _constitutive, _dem, _release, _rheology, _shapes
+from . import _bodies, _constitutive, _dem, _release, _rheology, _shallow, _shapes
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -377,6 +377,10 @@ def build(cfg: dict) -> Setup:
         vol0 = np.concatenate([vol0, np.full(len(park), area * thickness / n_per)])
         v_pool = np.broadcast_to(u * d, park.shape)
         v = np.concatenate([v, v_pool])
+    shallow = cfg["model.formulation"] == "depth-averaged"
+    if shallow:  # columns on the plan (_shallow): one particle per seeded column
+        x, vol0, v = _shallow.columns(x, vol0, v)
+        n_bodies = len(x)
     if cfg["numerics.force"] == "mls" and (
         cfg["numerics.transfer"] != "apic" or cfg["numerics.shape"] not in ("quadratic", "cubic")
     ):
@@ -386,7 +390,13 @@ def build(cfg: dict) -> Setup:
             f'or "cubic" (MLS needs APIC\'s affine matrix and a constant inertia D = h^2/4 or h^2/3), or use '
             f'numerics.force = "gradient"'
         )
-    lim = time_step_limits(cfg, params, x, v, rheology)
+    if shallow:
+        bed_pts = x.copy()
+        bed_pts[:, -1] = terrain.height(x[:, :-1]) if terrain is not None else float(cfg["domain.lo_m"][-1])
+        fall = _fall_height(cfg, params, bed_pts) if len(x) else 0.0
+        lim = _shallow.time_step_limits(cfg, params, x, vol0, v, fall, rheology)
+    else:
+        lim = time_step_limits(cfg, params, x, v, rheology)
     t_end, n_frames = cfg["time.t_end_s"], cfg["time.n_frames"]
     dt_req = cfg["numerics.dt_s"]
     if not (math.isfinite(lim["dt_limit_s"]) and lim["dt_limit_s"] > 0.0):
@@ -458,6 +468,7 @@ def build(cfg: dict) -> Setup:
         pressure=cfg["numerics.pressure"],
         void_closure=cfg["numerics.void_closure"],
         maxwell_rotation=cfg["numerics.maxwell_rotation"],
+        formulation=cfg["model.formulation"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],

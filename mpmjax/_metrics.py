@@ -651,6 +651,26 @@ class RunoutGauge(NamedTuple):
             return float(_profile_max_2d(self.cell, self.lo[0], self.hi[0])(x, vol, a))
         return float(thickness_map(np.asarray(x, float), vol0, a, *self.plan_edges(0, 1)).max())
 
+    def extent(self, x, vol0, active) -> float:
+        """Length [m] of the deposit along the runout axis: the bins (of one cell) whose thickness,
+        largest across the flow, is at least ``fraction`` of the thickest (the front's threshold),
+        counted from the first to the last; 0 with no active particle.  The depth-averaged
+        formulation's resolution measure (``deposit_cells_across`` = extent / h)."""
+        a = np.asarray(active, bool)
+        if not a.any():
+            return 0.0
+        x = np.asarray(x, float)
+        vol = np.broadcast_to(np.asarray(vol0, float), a.shape)
+        (edges,) = self.plan_edges(self.axis)
+        if self.dim == 2:
+            prof = np.histogram(x[a, self.axis], edges, weights=vol[a])[0] / self.cell
+        else:
+            (across,) = self.plan_edges(1 - self.axis)
+            xs = np.stack([x[:, self.axis], x[:, 1 - self.axis], x[:, 2]], axis=1)
+            prof = thickness_map(xs, vol, a, edges, across).max(axis=1)
+        on = np.nonzero(prof >= self.fraction * prof.max())[0]
+        return float((on[-1] - on[0] + 1) * self.cell) if prof.max() > 0 else 0.0
+
     def plan_edges(self, *axes) -> list:
         """Bin edges [m] of one cell along each of ``axes`` over the domain."""
         return [self.lo[k] + self.cell * np.arange(int(round((self.hi[k] - self.lo[k]) / self.cell)) + 1) for k in axes]

@@ -179,6 +179,8 @@ class Scene:
         per grid cell solved each step; ``_pressure``).
       void_closure: with ``incompressible``, ``off`` or ``position`` (voids closed by moving the
         particles; ``_pressure``, step 4).
+      formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
+        ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
     """
 
     dim: int
@@ -214,6 +216,7 @@ class Scene:
     pressure: str = "explicit"
     void_closure: str = "off"
     maxwell_rotation: str = "lag"
+    formulation: str = "full"
 
     @property
     def n_nodes(self) -> int:

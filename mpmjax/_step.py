@@ -30,7 +30,8 @@ composes them:
 6. loss detection (here): particles whose stencil leaves the grid, or whose state is not
    finite, are deactivated and counted in ``n_lost``.
 
-The same code runs in 2D (plane strain) and 3D.
+The same code runs in 2D (plane strain) and 3D.  A scene with ``model.formulation =
+"depth-averaged"`` gets the shallow-flow step of ``_shallow`` instead.
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._fusion import VELOCITY_GRADIENT, boundary, derivative_boundary, saved
 from ._pressure import make_projection
 from ._scene import Params, Scene, State
+from ._shallow import make_shallow_step
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
 from ._transfer import _wsum, make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
@@ -122,6 +124,8 @@ def make_step(scene: Scene, axis: str | None = None):
     of the grid the device holds (default ``_shard.Replicated``; ``_slab.Slab`` for a slab of it),
     through which every grid sum, nodal index and static per-node array goes.
     """
+    if scene.formulation == "depth-averaged":  # model.formulation: the shallow-flow step (_shallow)
+        return make_shallow_step(scene)
     if scene.devices > 1 and axis is None:
         if scene.decomposition == "slab":
             return make_slab_advance(scene, make_step(scene, AXIS), 1)

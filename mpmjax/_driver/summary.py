@@ -104,6 +104,9 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
     times, fronts, kinetic = acc["times"], acc["fronts"], acc["kinetic"]
     mass1 = float(np.sum(np.asarray(state.vol0) * np.asarray(state.active))) * rho
     thick = gauge.max_thickness(state.x, state.vol0, state.active)
+    shallow = sc.formulation == "depth-averaged"
+    # depth-averaged: the grid resolves the deposit in plan, not in depth: its length along the flow in cells
+    across = gauge.extent(state.x, state.vol0, state.active) / sc.h if shallow else thick / sc.h
     summary = status_summary(
         base,
         "complete",
@@ -133,10 +136,16 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         runout_capped_by_wall=bool(max(fronts[-1], acc["farthest"][-1]) >= sc.hi[gauge.axis] - gauge.origin - sc.h),
         # resolution across the deposit (docs/output.md "Runout"; the needed number: docs/validation.md)
         deposit_max_thickness_m=thick,
-        deposit_cells_across=thick / sc.h,
+        deposit_cells_across=across,
+        deposit_cells_definition=(
+            "depth-averaged: the deposit's length along the runout axis (bins at least runout_front_fraction of the "
+            "thickest) in cells"
+            if shallow
+            else "the deposit's largest thickness in cells"
+        ),
         deposit_cells_across_needed=_metrics.DEPOSIT_CELLS_NEEDED,
         dt_limits={
-            k: info[k]
+            k: _jsonable(info[k])
             for k in (
                 "dt_wave_s",
                 "dt_viscous_s",
@@ -152,7 +161,7 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         code_version=__version__,
         jax_backend=jax.default_backend(),
     )
-    warning = _deposit_warning(summary["deposit_cells_across"], thick, sc.h)
+    warning = (_shallow_warning if shallow else _deposit_warning)(summary["deposit_cells_across"], thick, sc.h)
     if warning is not None:
         summary["warnings"] = list(summary.get("warnings", [])) + [warning]
     return summary, warning
@@ -170,4 +179,16 @@ def _deposit_warning(cells: float, thick: float, h: float) -> str | None:
         "that converges (docs/validation.md, 'Depth resolution': more particles per cell do not pay; a domain.hi_m "
         "cropped to where the material goes saves the grid's few per cent; boundary.slip_length_m = "
         f"{0.25 * h:.3g} m (h/4) cut the shortfall by 15-30 % there at no cost, but changes the bed's physics)"
+    )
+
+
+def _shallow_warning(cells: float, thick: float, h: float) -> str | None:
+    """The depth-averaged formulation's warning for a deposit fewer than ``_metrics.DEPOSIT_CELLS_NEEDED``
+    cells long along the flow (its depth is not resolved by cells: each particle is a column)."""
+    if not 0 < cells < _metrics.DEPOSIT_CELLS_NEEDED:
+        return None
+    return (
+        f"the final deposit is {cells:.1f} cells long along the runout axis (deposit_cells_across, depth-averaged "
+        f"formulation; domain.cell_size_m = {h:g} m): fewer than {_metrics.DEPOSIT_CELLS_NEEDED} cells do not resolve "
+        f"its shape in plan: set domain.cell_size_m <= {cells * h / _metrics.DEPOSIT_CELLS_NEEDED:.3g} m"
     )

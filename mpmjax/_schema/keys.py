@@ -33,6 +33,19 @@ _REQ = object()  # marker: required
 _HEAD: dict[str, Key] = {
     "name": Key(str, "unnamed", "-", "Scene name, written to the outputs."),
     "description": Key(str, "", "-", "Free text describing the scene and its source."),
+    "model.formulation": Key(
+        str,
+        "full",
+        "-",
+        "Which equations the particles follow. full: the MPM continuum in domain.dim dimensions (the thesis's "
+        "model). depth-averaged: shallow flow on the plan of the first domain.dim - 1 axes (a profile along x in 2D, "
+        "the map in 3D): each particle is a column of the material carrying its volume, depth-averaged velocity and "
+        "the law's internal variables; depth from the particles' volume on the plan grid, hydrostatic pressure, "
+        "basal shear from the law through a depth-averaged closure (docs/depth-averaged.md). For field scenes the "
+        "grid cannot resolve in depth. Not with boundary.planes, periodic faces, a pipe inflow, an aging gate, "
+        "numerics.devices > 1, boundary-modified shapes, or the full model's volume and pressure options.",
+        choices=("full", "depth-averaged"),
+    ),
     "domain.dim": Key(int, 2, "-", "Dimension: 2 (plane strain, per metre of depth) or 3.", choices=(2, 3)),
     "domain.lo_m": Key("vec", _REQ, "m", "Lower corner of the domain box (walls lie on its faces)."),
     "domain.hi_m": Key("vec", _REQ, "m", "Upper corner of the domain box."),

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import _bodies, _dem, _release, _rheology
+from .. import _bodies, _dem, _release, _rheology, _shapes
 from .._boundary import inflow_layout
 from .._scene import WALL_KINDS
 from .keys import _REQ, BODY_KEYS, BODY_TYPES, Key, SceneError
@@ -620,6 +620,54 @@ def _validate_axes(out: dict, dim: int):
             )
 
 
+# model.formulation = "depth-averaged": the keys of the full model it does not take, with the value they must keep
+_DA_FIXED = {
+    "numerics.pressure": "explicit",
+    "numerics.volume_averaging": "none",
+    "numerics.grid_density_cap": 0.0,
+    "numerics.force": "gradient",
+    "numerics.transfer": "apic",
+    "numerics.devices": 1,
+    "numerics.void_closure": "off",
+}
+
+
+def _validate_formulation(out: dict, dim: int):
+    """model.formulation = "depth-averaged" (``_shallow``): refuse what that step does not do."""
+    if out["model.formulation"] != "depth-averaged":
+        return
+    why = "(model.formulation = 'depth-averaged': docs/depth-averaged.md, 'Missing')"
+    for key, val in _DA_FIXED.items():
+        if out[key] != val:
+            raise SceneError(
+                f"{key} = {_show(out[key])} is invalid with model.formulation = 'depth-averaged'; "
+                f"allowed: {val!r} {why}"
+            )
+    if out["numerics.shape"] in _shapes.BOUNDARY_MODIFIED:
+        raise SceneError(
+            f"numerics.shape = {_show(out['numerics.shape'])} is invalid with model.formulation = 'depth-averaged'; "
+            f"allowed: {', '.join(k for k in _shapes.STENCIL if k not in _shapes.BOUNDARY_MODIFIED)} {why}"
+        )
+    for a in range(dim - 1):
+        for end in ("lo", "hi"):
+            key = f"boundary.{'xyz'[a]}_{end}"
+            if out[key] == "periodic":
+                raise SceneError(
+                    f"{key} = 'periodic' is invalid with model.formulation = 'depth-averaged'; allowed: noslip, slip, "
+                    f"symmetry, open {why}"
+                )
+    if out["boundary.planes"]:
+        raise SceneError(
+            f"boundary.planes = {_show(out['boundary.planes'])} is invalid with model.formulation = 'depth-averaged'; "
+            f"allowed: [] {why}"
+        )
+    for key in ("gate.point_m", "inflow.point_m"):
+        if out[key] is not None:
+            raise SceneError(
+                f"{key} = {_show(out[key])} is invalid with model.formulation = 'depth-averaged'; allowed: unset {why}"
+            )
+
+
 def validate(raw: dict) -> dict:
     """Check a nested scene dict against ``SCHEMA``; returns a flat dict with defaults."""
     if not isinstance(raw, dict):
@@ -675,4 +723,5 @@ def validate(raw: dict) -> dict:
         )
     _validate_release(out, dim, lo, hi, flat)
     _validate_axes(out, dim)
+    _validate_formulation(out, dim)
     return out

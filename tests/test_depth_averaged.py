@@ -1,0 +1,293 @@
+"""The depth-averaged formulation (``model.formulation = "depth-averaged"``, ``mpmjax._shallow``,
+issue 33) against exact solutions, in float64 on the 1-D plan (domain.dim = 2: a profile along x).
+
+Each test asserts a physical number; the tolerances and why (docs/depth-averaged.md has the
+measured figures):
+
+* Ritter dam break (frictionless; H0 = 0.1 m, t = 0.4 s, h = 1 cm, 8 particles per cell): the depth
+  at the dam site is the exact 4/9 H0 for all t; the depth profile over the rarefaction has an L1
+  error against the exact parabola; the point where the depth falls to H0 / 5 (where particles are
+  still at most about a cell apart: a column of volume H0 h / 8 spreads over h at depth H0 / 8) is
+  at the exact position.  All within 2 % (of 4/9 H0, of the exact profile's integral, of the front's
+  travel 2 c0 t).  The thinner tip is under-resolved by the finite particle volumes (the farthest
+  particle lags the exact 2 c0 t front by 13 %: asserted as a bound, documented);
+* a Bingham layer on a 10 degree incline: a long uniform layer 3 % under the critical depth
+  h_c = tau_y / (rho g sin(theta)) stays at rest (zero velocity in its middle: the capped yield
+  friction), one 3 % over it flows; a finite layer released at 2 h_c comes to rest with its
+  deepest point within 5 % of h_c (the static profile of a Bingham deposit on an incline never
+  exceeds h_c; the remaining excess is the slow final drainage);
+* mass: the particles carry their volumes, so the total is conserved exactly (to round-off: 1e-12);
+  depths are never negative;
+* the gradient of the runout (the volume centroid's advance) with respect to the yield stress,
+  by reverse mode through ``lax.scan``, against a central finite difference (float64; 1 %);
+* ``vmap`` over yield stresses equals the separate runs (1e-12 relative);
+* a viscous gravity current against Huppert's (1982) similarity solution (5 %);
+* a twin back-analysis of the yield stress from a dam break's outline (5 %, the issue's target; measured
+  -2.6 %: the fit resolution's bias);
+* an inertia-free Bingham slump comes to rest at the lubrication static front (5 %; measured -0.34 %).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mpmjax._build import build
+from mpmjax._schema import SceneError, validate
+from mpmjax._shallow import plan_depth
+from mpmjax._simulate import simulate
+
+G = 9.81
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _x64():
+    prev = jax.config.jax_enable_x64
+    jax.config.update("jax_enable_x64", True)
+    yield
+    jax.config.update("jax_enable_x64", prev)
+
+
+def _scene(material, body, t_end, h=0.01, ppc=8, length=2.0, slope=0.0, n_frames=4, x_lo="slip"):
+    return {
+        "model": {"formulation": "depth-averaged"},
+        "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [length, 0.2], "cell_size_m": h},
+        "boundary": {"x_lo": x_lo, "x_hi": "open"},
+        "numerics": {"shape": "quadratic", "ppc": ppc, "dtype": "float64"},
+        "gravity": {"slope_deg": slope},
+        "material": dict(material, density_kg_m3=1000.0, bulk_modulus_pa=1e5),
+        "time": {"t_end_s": t_end, "n_frames": n_frames},
+        "bodies": [{"type": "box", "lo_m": body[0], "hi_m": body[1]}],
+    }
+
+
+_run = jax.jit(simulate, static_argnums=(0, 3))
+
+
+def _final(raw):
+    s = build(validate(raw))
+    fin, frames = _run(s.scene, s.state, s.params)
+    return s, fin, frames
+
+
+# ------------------------------------------------------------------------------------------ Ritter
+
+H0, X0, T_R = 0.1, 1.0, 0.4
+
+
+@pytest.fixture(scope="module")
+def ritter():
+    inviscid = {"model": "newtonian", "viscosity_pa_s": 1e-12}
+    return _final(_scene(inviscid, ([0.0, 0.0], [X0, H0]), T_R))
+
+
+def test_ritter_dam_break_depth_and_front(ritter):
+    s, fin, _ = ritter
+    H, xn = plan_depth(s.scene, fin)
+    H, xn = np.asarray(H), xn[:, 0]
+    c0 = math.sqrt(G * H0)
+    xi = (xn - X0) / T_R
+    exact = np.clip(np.where(xi < -c0, H0, (2 * c0 - xi) ** 2 / (9 * G)), 0.0, H0)
+    exact = np.where(xi > 2 * c0, 0.0, exact)
+    # the dam site: 4/9 H0 at all t
+    assert np.interp(X0, xn, H) == pytest.approx(4 / 9 * H0, rel=0.02)
+    # the rarefaction, L1: where the exact depth is at least H0 / 5 (resolved by the particles) within 2 %;
+    # the whole wave, to the exact front, within 3 % (the thin tip's clumped particles: docstring)
+    wave = (xi > -c0) & (xi < 2 * c0)
+    resolved = wave & (exact >= 0.2 * H0)
+    assert np.abs(H - exact)[resolved].sum() / exact[resolved].sum() < 0.02
+    assert np.abs(H - exact)[wave].sum() / exact[wave].sum() < 0.03
+    # where the depth falls to H0 / 5: x = x0 + c0 t (2 - 3 sqrt(1/5))
+    i = np.nonzero(H >= 0.2 * H0)[0][-1]
+    x_num = xn[i] + (H[i] - 0.2 * H0) / (H[i] - H[i + 1]) * s.scene.h
+    x_ex = X0 + c0 * T_R * (2 - 3 * math.sqrt(0.2))
+    assert abs(x_num - x_ex) < 0.02 * 2 * c0 * T_R
+    # the farthest particle: behind the exact front (never ahead of it), by the under-resolved tip
+    far = float(np.asarray(fin.x[:, 0]).max()) - X0
+    assert 0.8 * 2 * c0 * T_R < far <= 1.0 * 2 * c0 * T_R
+
+
+def test_mass_exact_and_depth_never_negative(ritter):
+    s, fin, frames = ritter
+    v0 = np.asarray(s.state.vol0)
+    assert int(fin.n_lost) == 0
+    for i in range(frames.x.shape[0]):
+        state = fin._replace(x=frames.x[i], active=frames.active[i])
+        assert float(np.sum(v0 * np.asarray(state.active))) == pytest.approx(float(v0.sum()), rel=1e-12)
+        H, _ = plan_depth(s.scene, state)
+        assert float(jnp.min(H)) >= 0.0
+        assert bool(jnp.all(jnp.isfinite(frames.x[i])))
+
+
+# -------------------------------------------------------------------------- viscous gravity current
+
+
+def test_viscous_gravity_current_follows_the_similarity_solution():
+    """Huppert (1982): a fixed area q of viscous fluid spreading from a wall on a horizontal plane
+    has its front at x_N = 1.411 (g q^3 t / (3 nu))^(1/5) once inertia is negligible (the constant:
+    (10 / (3 I^3))^(1/5), I = int_0^1 (1 - s^2)^(1/3) ds, for the one-sided planar current; the
+    closure's 3 mu U / h is the lubrication basal stress, so the depth-averaged equations reduce to
+    Huppert's).  q = 0.1 m x 0.1 m, nu = 0.01 m^2/s (Reynolds number ~0.02 at 10 s); the box's
+    virtual time origin is 6 ms.  Front: the farthest particle + half a spacing (the similarity
+    front is steep, h ~ (x_N - x)^(1/3)).  5 % (the issue's target); measured -2.3 % at 10 s, -2.9 %
+    at 2 s (approaching)."""
+    s, fin, frames = _final(
+        _scene({"model": "newtonian", "viscosity_pa_s": 10.0}, ([0.0, 0.0], [0.1, 0.1]), 10.0, length=1.0, n_frames=2)
+    )
+    q, nu = 0.01, 0.01
+    x_n = float(jnp.max(fin.x[:, 0])) + 0.5 * s.scene.h / 8
+    assert x_n == pytest.approx(1.411 * (G * q**3 * 10.0 / (3 * nu)) ** 0.2, rel=0.05)
+
+
+# ------------------------------------------------------------------------------- Bingham on an incline
+
+THETA, TAU_Y, MU_B = 10.0, 50.0, 1.0
+H_C = TAU_Y / (1000.0 * G * math.sin(math.radians(THETA)))
+BINGHAM = {"model": "bingham", "viscosity_pa_s": MU_B, "yield_stress_pa": TAU_Y}
+
+
+@pytest.mark.parametrize("factor, moves", [(0.97, False), (1.03, True)])
+def test_bingham_uniform_layer_yields_at_the_critical_depth(factor, moves):
+    """A layer over the whole 4 m slope (open at its lower end, a slip wall at its upper): its middle
+    is uniform, so it flows if and only if rho g sin(theta) h > tau_y."""
+    raw = _scene(BINGHAM, ([0.0, 0.0], [4.0, factor * H_C]), 0.2, h=0.02, ppc=4, length=4.0, slope=THETA)
+    s, fin, _ = _final(raw)
+    x = np.asarray(s.state.x[:, 0])
+    mid = (x > 1.5) & (x < 2.5)
+    u = np.abs(np.asarray(fin.v[:, 0]))[mid]
+    if moves:  # it accelerates: (g sin(theta) - tau_y / (rho h)) t minus the viscous drag, > 1 mm/s at 0.2 s
+        assert u.min() > 1e-3
+    else:
+        assert u.max() == 0.0
+
+
+def test_bingham_layer_stops_at_the_critical_depth():
+    raw = _scene(BINGHAM, ([0.2, 0.0], [0.7, 2 * H_C]), 10.0, h=0.02, ppc=4, length=4.0, slope=THETA, n_frames=10)
+    s, fin, frames = _final(raw)
+    H, _ = plan_depth(s.scene, fin)
+    assert float(H.max()) == pytest.approx(H_C, rel=0.05)
+    # draining slowly: the fastest particle below 5 % of the gravity-wave speed sqrt(g h_c) of the critical layer
+    assert float(jnp.abs(fin.v).max()) < 0.05 * math.sqrt(G * H_C)
+
+
+def test_a_scene_with_an_unsupported_option_is_refused():
+    raw = _scene(BINGHAM, ([0.2, 0.0], [0.7, 0.05]), 1.0)
+    raw["numerics"]["volume_averaging"] = "jbar"
+    with pytest.raises(SceneError, match="numerics.volume_averaging = 'jbar'.*depth-averaged.*allowed: 'none'"):
+        validate(raw)
+    raw = _scene(BINGHAM, ([0.2, 0.0], [0.7, 0.05]), 1.0, x_lo="periodic")
+    with pytest.raises(SceneError, match="boundary.x_lo = 'periodic'"):
+        validate(raw)
+
+
+# ------------------------------------------------------------------------------ gradient and vmap
+
+
+@pytest.fixture(scope="module")
+def slump():
+    """A Bingham dam break on the flat (tau_y = 20 Pa, mu = 0.5 Pa s, 0.1 m x 0.3 m), 0.3 s."""
+    mat = {"model": "bingham", "viscosity_pa_s": 0.5, "yield_stress_pa": 20.0}
+    s = build(validate(_scene(mat, ([0.0, 0.0], [0.3, 0.1]), 0.3, h=0.02, ppc=4, length=1.0, n_frames=2)))
+    return s
+
+
+def _runout(s, tau_y):
+    params = s.params._replace(material=s.params.material._replace(tau_y=tau_y))
+    fin, _ = simulate(s.scene, s.state, params)
+    v = fin.vol0 * fin.active
+    return jnp.sum(v * fin.x[:, 0]) / jnp.sum(v)  # the volume centroid [m]
+
+
+def test_gradient_of_runout_wrt_yield_stress_matches_finite_difference(slump):
+    f = jax.jit(lambda t: _runout(slump, t))
+    tau = jnp.asarray(20.0)
+    g = float(jax.jit(jax.grad(lambda t: _runout(slump, t)))(tau))
+    d = 0.5
+    fd = (float(f(tau + d)) - float(f(tau - d))) / (2 * d)
+    assert g < 0  # a stronger material runs less far
+    assert g == pytest.approx(fd, rel=0.01)
+
+
+def test_vmap_equals_separate_runs(slump):
+    taus = jnp.asarray([10.0, 20.0, 40.0])
+    batched = jax.jit(jax.vmap(lambda t: _runout(slump, t)))(taus)
+    single = jax.jit(lambda t: _runout(slump, t))
+    for i, t in enumerate(taus):
+        assert float(batched[i]) == pytest.approx(float(single(t)), rel=1e-12)
+    assert float(batched[0]) > float(batched[1]) > float(batched[2])
+
+
+# ------------------------------------------------------------------------ Bingham slump vs lubrication
+
+
+def test_bingham_slump_comes_to_rest_at_the_lubrication_front():
+    """Issue 33: the Bingham 1-D dam break against lubrication theory.  The geometry and numbers of
+    mpmjax.studies.validate's slump-lubrication-B0.05-a1 case: a block H0 = L = 0.1 m against a wall,
+    B = tau_y L / (rho g H0^2) = 0.05 (tau_y = 49.05 Pa), Galileo number rho^2 g H0^3 / mu^2 = 1
+    (mu = 99 Pa s: inertia-free).  Its static front x_inf = (9 rho g H0^2 L^2 / (8 tau_y))^(1/3) =
+    0.2823 m (B <= 1/3; Balmforth et al. 2006, Matson & Hogg 2007) is the critical profile
+    rho g H dH/dx = -tau_y holding the block's area, which is also the depth-averaged model's static
+    state.  At h = 5 mm the slump is at rest by 80 s (largest speed 8e-10 m/s at 120 s); the
+    headline front (free_surface_front, thickness 10 % of the deepest: 1 % inside the tip of the
+    parabolic critical profile) is at -0.34 % of x_inf (-0.33 % at h = 1 cm, not quite at rest).
+    5 %: the issue's target for the other benchmarks, and the 3D model's figure for this case."""
+    from mpmjax._observables import free_surface_front
+
+    rho, h0, length, bingham = 1000.0, 0.1, 0.1, 0.05
+    tau = bingham * rho * G * h0**2 / length
+    mat = {"model": "bingham", "viscosity_pa_s": math.sqrt(rho**2 * G * h0**3), "yield_stress_pa": tau}
+    xinf = (9 * rho * G * h0**2 * length**2 / (8 * tau)) ** (1 / 3)
+    raw = _scene(mat, ([0.0, 0.0], [length, h0]), 100.0, h=0.005, ppc=4, length=0.4, n_frames=2)
+    raw["boundary"]["x_hi"] = "slip"
+    s, fin, frames = _final(raw)
+    assert float(jnp.abs(fin.v).max()) < 1e-6  # at rest
+    front = float(free_surface_front(fin.x, fin.vol0, fin.active, bandwidth=0.005, x_lo=0.0, x_hi=0.4))
+    assert front == pytest.approx(xinf, rel=0.05)
+
+
+# ------------------------------------------------------------------------------ twin back-analysis
+
+
+def test_twin_back_analysis_recovers_the_yield_stress():
+    """Issue 33: a twin back-analysis recovers tau_y within 5 % from a runout outline.
+
+    Truth: the Bingham dam break of ``slump`` (tau_y = 20 Pa, mu = 0.5 Pa s, 0.3 m x 0.1 m against
+    a slip wall) run to t = 1 s at h = 5 mm; its outline at 1 s (the kernel height profile at
+    2 cm stations where it is over 2 mm, bandwidth 2 cm, sigma 2 mm) and its headline runout
+    (``free_surface_front``).  Fit: the same scene at h = 10 mm (not the truth's discretisation:
+    no inverse crime), Levenberg-Marquardt through ``calibration.fit`` (forward-mode Jacobian through
+    ``simulate``), from tau_y = 40 Pa (a factor 2 off).  Measured: 19.48 Pa (-2.6 %), the same to
+    1e-5 from 10 Pa, so the error is the coarser model's resolution bias, not the optimiser.
+    5 % is the issue's target.  At 1 s the front is slowing (0.85 m; it arrests at about 0.94 m
+    near 1.5 s, then creeps): the forward sensitivities through the arrest are not usable yet (at
+    2 s the Jacobian of the outline is at cosine 0.24 to a finite difference; at 1 s, 0.994),
+    so the fit is to the outline before arrest (docs/depth-averaged.md)."""
+    from calibration.data import Profile
+    from calibration.experiments import ProfileExperiment
+    from calibration.fit import fit
+    from calibration.params import ParameterSet
+    from mpmjax._observables import free_surface_front, height_profile
+
+    mat = {"model": "bingham", "viscosity_pa_s": 0.5, "yield_stress_pa": 20.0}
+
+    def setup(h):
+        return build(validate(_scene(mat, ([0.0, 0.0], [0.3, 0.1]), 1.0, h=h, ppc=4, length=1.2, n_frames=1)))
+
+    truth = setup(0.005)
+    fin, _ = _run(truth.scene, truth.state, truth.params)
+    xs = np.arange(0.01, 1.2, 0.02)
+    hp = np.asarray(height_profile(fin.x, fin.vol0, fin.active, jnp.asarray(xs), bandwidth=0.02))
+    on = hp > 0.002
+    runout = float(free_surface_front(fin.x, fin.vol0, fin.active, bandwidth=0.01, x_lo=0.0, x_hi=1.2))
+    assert 0.8 < runout < 0.9  # 0.85 m: the outline is of a flow that has spread, not of the initial block
+
+    coarse = setup(0.01)
+    exp = ProfileExperiment(coarse, [Profile(x_m=xs[on], h_m=hp[on])], bandwidth_m=0.02, sigma_m=0.002, runout_m=runout)
+    ps = ParameterSet.from_names(["tau_y"], coarse.params.material, init={"tau_y": 40.0})
+    r = fit([exp], ps, method="lm", max_iter=10, progress=False)
+    assert r.params["tau_y"] == pytest.approx(20.0, rel=0.05), r.params
+    assert r.loss_final < 1e-3 * r.loss_initial
