@@ -32,6 +32,7 @@ differentiable path used by calibration) always steps the full buffer.
 from __future__ import annotations
 
 import math
+import time
 from typing import NamedTuple
 
 import jax
@@ -102,6 +103,78 @@ def make_chunk(scene: Scene, n_steps: int | None = None, recompute: bool = True)
         return jax.lax.scan(body, state, None, length=length)[0]
 
     return jax.checkpoint(chunk) if recompute else chunk
+
+
+def chunkable(scene: Scene) -> bool:
+    """Whether a frame of ``scene`` can be stepped in chunks of any number of steps (``make_steps``):
+    not on slabs (``numerics.decomposition = "slab"``), whose advance deals the particles out to
+    the devices at the start of each call, so that a chunk boundary would change where they are
+    dealt out, and with it the order of the grid sums."""
+    return not (scene.devices > 1 and scene.decomposition == "slab")
+
+
+def make_steps(scene: Scene):
+    """``steps(state, params, n) -> state``: ``n`` steps, ``n`` an int32 that may be traced, so that
+    one compiled program steps any number of them (a ``lax.fori_loop`` with a dynamic trip
+    count).  A frame stepped as chunks of any lengths gives the frame's ``make_chunk`` state bit
+    for bit: the loop body is the same step, compiled the same way (tests/test_chunked_frames.py).
+    Forward only (no ``jax.checkpoint``: it is for the host-side drivers, which call it chunk by
+    chunk so that a signal is seen between chunks: ``Pacer``).  Not on slabs (``chunkable``)."""
+    if not chunkable(scene):
+        raise ValueError("make_steps: slab decomposition steps whole frames only (_simulate.chunkable)")
+    step = make_step(scene)
+
+    def steps(state, params, n):
+        # the per-step checkpoint of make_chunk, so that the body is compiled as it is there (it does
+        # nothing in a forward pass, but is kept for the very same program)
+        per_step = on_cpu()
+        policy = jax.checkpoint_policies.save_only_these_names(*SAVED)
+        one = jax.checkpoint(step, policy=policy) if per_step else step
+        return jax.lax.fori_loop(0, n, lambda i, s: one(s, params), state)
+
+    return steps
+
+
+CHUNK_S = 1.0  # the wall time a chunk of steps aims at: a signal is acted on within about this
+
+
+class Pacer:
+    """How many steps the next chunk of a chunked frame takes (``make_steps``), so that a chunk
+    takes about ``target_s`` of wall time and a signal is seen within seconds however long a frame
+    is: it starts at ``first`` step(s) and, after each chunk (``took``), sets the count from the
+    measured time per step, growing at most fourfold a chunk (the first call may include a
+    compilation or a cold cache).  A frame shorter than ``target_s`` is one chunk, one call, as
+    before the frames were chunked."""
+
+    def __init__(self, target_s: float = CHUNK_S, first: int = 1):
+        self.target_s, self.n = float(target_s), max(1, int(first))
+
+    def next(self, left: int) -> int:
+        """The steps of the next chunk when ``left`` steps of the frame remain."""
+        return max(1, min(self.n, int(left)))
+
+    def took(self, n: int, seconds: float) -> None:
+        """A chunk of ``n`` steps took ``seconds``."""
+        cap = 4 * max(self.n, int(n))
+        ideal = cap if seconds <= 0 else n * self.target_s / seconds
+        self.n = int(max(1, min(ideal, cap)))
+
+
+def run_chunked(steps, state, n_steps: int, pacer: Pacer, between=None):
+    """``n_steps`` steps of ``steps(state, n) -> state`` in chunks paced by ``pacer``: after each
+    chunk the result is waited for (``jax.block_until_ready``, in which Python's signal handlers
+    run) and ``between()`` is called (a driver checks there for a signal its handler could not
+    raise).  Returns the state after the last step."""
+    left = int(n_steps)
+    while left > 0:
+        n = pacer.next(left)
+        t0 = time.perf_counter()
+        state = jax.block_until_ready(steps(state, np.int32(n)))
+        pacer.took(n, time.perf_counter() - t0)
+        left -= n
+        if between is not None:
+            between()
+    return state
 
 
 def state_bytes(state: State) -> int:

@@ -6,12 +6,15 @@ seconds (``_guard.Watchdog``), where the interpreter used to wait for the call t
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 TWIN = str(ROOT / "data" / "twin-small-dambreak.toml")
@@ -75,3 +78,47 @@ def test_the_watchdog_ends_a_main_thread_that_cannot_see_the_signal(tmp_path):
     assert rc == 130, (rc, err)
     assert "interrupted: the note of the command (stopped inside a computation" in err
     assert waited < 15  # GRACE_S (5 s) and the exit, not the minutes the loop takes
+
+
+def _sweep_cmd(vary):
+    return [sys.executable, "-m", "mpmjax.cli", "sweep", TWIN, "--vary", vary, "--chunk", "1", "--out", "o",
+            "--set", "domain.cell_size_m=0.03", "--set", "time.t_end_s=60", "--set", "time.n_frames=2"]
+
+
+def test_sigint_in_a_sweep_stops_between_chunks_keeps_finished_cases_and_the_same_command_continues(
+    tmp_path, monkeypatch, capsys
+):
+    """Ctrl-C inside the second batch (one case a batch, each a few seconds of 1-second chunks):
+    the process ends within seconds by its own handler (not the watchdog's 5 s), the first case is
+    kept in o/sweep-partial.npz, a different sweep into o is refused rather than lose it, and the
+    same command again runs only the second case; the kept case is in the result unchanged."""
+    cmd = _sweep_cmd("n=2,3")
+    rc, err, waited = _signal_after(cmd, "batch 1/2", signal.SIGINT, tmp_path, delay=0.5)
+    assert rc == 130, (rc, err)
+    last = err.strip().splitlines()[-1]
+    assert last == ("interrupted: 1 of 2 cases finished and are kept in o/sweep-partial.npz; run the same command "
+                    "again (or with --resume) to run only the other 1"), err
+    assert waited < 4.5 and "stopped inside a computation" not in err and "Traceback" not in err
+    kept = tmp_path / "o" / "sweep-partial.npz"
+    with np.load(kept) as z:
+        assert list(z["case_index"]) == [0]
+        runout0 = z["runout_m"][0].copy()
+    before = kept.read_bytes()
+
+    monkeypatch.chdir(tmp_path)
+    from mpmjax import cli
+
+    assert cli.main(_sweep_cmd("n=2,4")[3:] + ["--resume", "--quiet"]) == 2
+    other = capsys.readouterr().err
+    assert "sweep-partial.npz holds 1 finished case(s) of another sweep (it differs in --vary)" in other, other
+    assert kept.read_bytes() == before
+
+    again = subprocess.run(cmd, cwd=tmp_path, env=ENV, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "1 of 2 cases already finished (kept in o/sweep-partial.npz); running the others" in again.stderr
+    assert "batch 1/1 (2/2 cases)" in again.stderr  # only the second case ran
+    assert not kept.exists()
+    doc = json.loads((tmp_path / "o" / "sweep.json").read_text())
+    assert doc["cases"] == [{"n": 2.0}, {"n": 3.0}] and doc["cases_resumed"] == 1
+    np.testing.assert_array_equal(np.asarray(doc["runout_m"][0], float), runout0)
+    assert 0.3 < doc["final_runout_m"][1] < 1.0
