@@ -378,8 +378,13 @@ def _identity(cfg: dict, vary: dict, shard, profile_x_m) -> dict:
 
 
 _KEPT_ARRAYS = ("case_index", "runout_m", "runout_farthest_particle_m", "kinetic_energy_J", "n_lost", "profile_h_m")
-_WHAT = {"scene": "the scene", "config_hash": "the scene's keys or --set overrides", "vary": "--vary",
-         "shard": "--shard", "profile_x_m": "the profile points"}
+_WHAT = {
+    "scene": "the scene",
+    "config_hash": "the scene's keys or --set overrides",
+    "vary": "--vary",
+    "shard": "--shard",
+    "profile_x_m": "the profile points",
+}
 
 
 def _write_npz(path: Path, doc: dict, arrays: dict) -> None:

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._fusion import SAVED, on_cpu
+from ._received import check
 from ._scene import Params, Scene, State
 from ._shard import AXIS
 from ._slab import make_slab_advance
@@ -305,27 +306,70 @@ def make_prefix_advance(scene: Scene, n: int):
     return jax.jit(advance)
 
 
+def make_prefix_steps(scene: Scene, n: int):
+    """Jitted ``advance(state, params, k) -> state``: ``k`` steps (an int32; one program for any
+    ``k``: ``make_steps``) of particles [0, n) of the buffer, carrying particles [n, N) as
+    ``make_prefix_advance`` does.  The driver's frame is a few such calls (``run_chunked``), and
+    gives ``make_prefix_advance``'s frame bit for bit."""
+    steps = make_steps(scene)
+    if n >= scene.n_particles:
+        return jax.jit(steps)
+
+    def advance(state, params, k):
+        head, tail = _split(state, n)
+        new = steps(head, params, k)
+        tail = tail._replace(v=jnp.zeros_like(tail.v), C=jnp.zeros_like(tail.C), tau=jnp.zeros_like(tail.tau))
+        N = state.x.shape[0]
+
+        def join(a, b, c):
+            return jnp.concatenate([a, b]) if c.ndim and c.shape[0] == N else a
+
+        return jax.tree_util.tree_map(join, new, tail, state)
+
+    return jax.jit(advance)
+
+
+def make_frame_program(scene: Scene, n: int):
+    """The driver's program for the buffer prefix [0, n): ``make_prefix_steps`` (called with the
+    steps of a chunk) where the scene is ``chunkable``, else ``make_prefix_advance`` (a whole frame)."""
+    return make_prefix_steps(scene, n) if chunkable(scene) else make_prefix_advance(scene, n)
+
+
+def frame_program_args(scene: Scene, state: State, params: Params) -> tuple:
+    """Example arguments to lower ``make_frame_program``'s program with."""
+    return (state, params, np.int32(1)) if chunkable(scene) else (state, params)
+
+
 class StagedAdvance:
     """Frame-by-frame driver: ``advance(i, state, params) -> state`` advances frame ``i`` (0-based)
     on the prefix ``capacity_schedule(scene)[i]`` of the buffer (the whole buffer when
     ``staged`` is False or the scene has no inflow).
 
-    ``compile(n)`` returns the advance for prefix size n (default: ``make_prefix_advance``;
-    the command line passes a cached, ahead-of-time compiled one).  Before a frame the
+    ``compile(n)`` returns the program for prefix size n (default: ``make_frame_program``; the
+    command line passes a cached, ahead-of-time compiled one).  Where the scene is ``chunkable``
+    the program takes a number of steps and a frame is stepped in chunks of about ``CHUNK_S``
+    seconds (``run_chunked``, ``pacer``), with ``between()`` after each (default: raise
+    ``Interrupted`` for a signal noted in ``_received``), so that a signal is acted on within
+    seconds however long a frame is; the frame is the same bit for bit.  Before a frame the
     particles beyond the prefix must all be inactive, and after it the first of them must
     still be due later than the state's time; otherwise (a state not from this schedule,
     or time drift beyond the slack) the frame is run on the whole buffer instead (always
     correct) and counted in ``fallbacks``.
     """
 
-    def __init__(self, scene: Scene, staged: bool = True, compile=None, min_size: int | None = None):
+    def __init__(
+        self, scene: Scene, staged: bool = True, compile=None, min_size: int | None = None, pacer=None, between=check
+    ):
         self.scene = scene
         N = scene.n_particles
         m = MIN_STAGE if min_size is None else min_size
         self.schedule = capacity_schedule(scene, min_size=m) if staged else (N,) * scene.n_frames
-        self._compile = compile or (lambda n: make_prefix_advance(scene, n))
+        self._compile = compile or (lambda n: make_frame_program(scene, n))
         self._programs: dict = {}
         self.fallbacks = 0
+        self.chunked = chunkable(scene)
+        self.pacer = pacer or Pacer()
+        self.between = between
 
     def sizes(self, first_frame: int = 0) -> list[int]:
         """The prefix sizes that frames ``first_frame``.. use, ascending."""
@@ -342,10 +386,16 @@ class StagedAdvance:
         n = self.schedule[i] if i < len(self.schedule) else N
         if n < N and bool(jnp.any(state.active[n:])):
             n = N
-        new = self.program(n)(state, params)
+        new = self._frame(self.program(n), state, params)
         if n < N:
             k = (n - sc.inflow.first) // sc.inflow.n_per_layer
             if not layer_time(sc, k) >= float(new.t) + 0.5 * sc.dt:
                 self.fallbacks += 1
-                new = self.program(N)(state, params)
+                new = self._frame(self.program(N), state, params)
         return new
+
+    def _frame(self, program, state: State, params: Params) -> State:
+        if not self.chunked:
+            return program(state, params)
+        spf = self.scene.steps_per_frame
+        return run_chunked(lambda s, k: program(s, params, k), state, spf, self.pacer, self.between)
