@@ -122,3 +122,30 @@ def test_sigint_in_a_sweep_stops_between_chunks_keeps_finished_cases_and_the_sam
     assert doc["cases"] == [{"n": 2.0}, {"n": 3.0}] and doc["cases_resumed"] == 1
     np.testing.assert_array_equal(np.asarray(doc["runout_m"][0], float), runout0)
     assert 0.3 < doc["final_runout_m"][1] < 1.0
+
+
+def test_sigterm_while_the_pictures_are_written_leaves_summary_saying_what_is_missing(tmp_path, monkeypatch):
+    """SIGTERM once animation.gif is under way: exit 143 with one line naming the missing output;
+    summary.json is 'interrupted', not complete, and lists it (it used to say 'complete' without the
+    pictures); no half GIF is left; --resume writes the outputs from the final frame, stepping none."""
+    cmd = [sys.executable, "-m", "mpmjax.cli", "run", "dambreak-lab", "--out", "o", "--set", "domain.cell_size_m=0.04",
+           "--set", "time.t_end_s=0.2", "--set", "time.n_frames=10"]
+    rc, err, _ = _signal_after(cmd, "animation [", signal.SIGTERM, tmp_path, delay=0.0)
+    assert rc == 143, (rc, err)
+    out = tmp_path / "o"
+    last = err.strip().splitlines()[-1]
+    assert last == (f"interrupted while the outputs were written: the run is complete in o/result.h5, but "
+                    f"animation.gif is missing; write them with: mpmjax run --resume o"), err
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["status"] == "interrupted" and doc["complete"] is False and doc["outputs_missing"] == ["animation.gif"]
+    assert not (out / "animation.gif").exists() and (out / "result.png").is_file()
+    assert (out / "checkpoint.h5").is_file()
+
+    monkeypatch.chdir(tmp_path)
+    from mpmjax import cli
+
+    assert cli.main(["run", "--resume", "o", "--quiet"]) == 0
+    doc = json.loads((out / "summary.json").read_text())
+    assert doc["status"] == "complete" and doc["complete"] is True and "outputs_missing" not in doc
+    assert len(doc["times_s"]) == 11 and (out / "animation.gif").stat().st_size > 1000
+    assert not (out / "checkpoint.h5").exists()

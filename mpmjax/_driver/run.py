@@ -149,7 +149,7 @@ def _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint
     compile_s = time.perf_counter() - t0
     staged_note = (
         f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
-        if sizes != [sc.n_particles]
+        if sizes and sizes != [sc.n_particles]  # none: resumed at the last frame, to write the outputs
         else ""
     )
     log(f"compiled in {compile_s:.1f} s{staged_note}")
