@@ -134,8 +134,8 @@ def test_sigterm_while_the_pictures_are_written_leaves_summary_saying_what_is_mi
     assert rc == 143, (rc, err)
     out = tmp_path / "o"
     last = err.strip().splitlines()[-1]
-    assert last == (f"interrupted while the outputs were written: the run is complete in o/result.h5, but "
-                    f"animation.gif is missing; write them with: mpmjax run --resume o"), err
+    assert last == ("interrupted while the outputs were written: the run is complete in o/result.h5, but "
+                    "animation.gif is missing; write them with: mpmjax run --resume o"), err
     doc = json.loads((out / "summary.json").read_text())
     assert doc["status"] == "interrupted" and doc["complete"] is False and doc["outputs_missing"] == ["animation.gif"]
     assert not (out / "animation.gif").exists() and (out / "result.png").is_file()
@@ -149,3 +149,59 @@ def test_sigterm_while_the_pictures_are_written_leaves_summary_saying_what_is_mi
     assert doc["status"] == "complete" and doc["complete"] is True and "outputs_missing" not in doc
     assert len(doc["times_s"]) == 11 and (out / "animation.gif").stat().st_size > 1000
     assert not (out / "checkpoint.h5").exists()
+
+
+def test_ctrl_c_in_the_first_second_of_run_is_not_swallowed(tmp_path):
+    """Ctrl-C while the program imports (where jax's gc callback used to drop it, and the run went on
+    to overwrite the folder and exit 0): exit 130 with one line, the folder as it was."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "result.h5").write_bytes(b"an earlier run")
+    (out / "summary.json").write_text('{"status": "complete"}')
+    cmd = [sys.executable, "-m", "mpmjax.cli", "run", "dambreak-lab", "--no-animation", "--out", "o",
+           "--set", "domain.cell_size_m=0.04", "--set", "time.t_end_s=0.1", "--set", "time.n_frames=1"]
+    for delay in (0.5, 0.9):  # where it was swallowed (0.5-1.2 s on the 2-core VM)
+        p = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+        time.sleep(delay)
+        p.send_signal(signal.SIGINT)
+        err = p.communicate(timeout=60)[1]
+        assert p.returncode == 130, (delay, p.returncode, err)
+        assert err.strip().splitlines()[-1].startswith("interrupted") and "Traceback" not in err, (delay, err)
+        assert (out / "result.h5").read_bytes() == b"an earlier run", delay
+        assert (out / "summary.json").read_text() == '{"status": "complete"}', delay
+
+
+def test_a_signal_whose_exception_a_gc_callback_drops_still_stops_the_run(tmp_path, monkeypatch, capsys):
+    """The mechanism itself: SIGINT handled inside a garbage-collector callback (Python prints
+    'Exception ignored' and drops the Interrupted) while the scene is built; the run still stops
+    before it creates its folder (mpmjax._received)."""
+    import gc
+
+    from mpmjax import cli
+    from mpmjax._driver import run as driver_run
+
+    real_build = driver_run.build
+
+    def cb(phase, info):
+        if phase == "start":
+            gc.callbacks.remove(cb)
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(10000):  # the handler runs here, inside the callback, which drops its exception
+                pass
+
+    def build(cfg):
+        gc.callbacks.append(cb)
+        gc.collect()
+        return real_build(cfg)
+
+    monkeypatch.setattr(driver_run, "build", build)
+    dropped = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: dropped.append(u.exc_type.__name__))
+    out = tmp_path / "o"
+    argv = ["run", "dambreak-lab", "--quiet", "--no-animation", "--out", str(out), "--set", "time.n_frames=1"]
+    assert cli.main(argv) == 130
+    err = capsys.readouterr().err
+    assert dropped == ["Interrupted"]  # the handler's exception was dropped by the callback
+    last = err.strip().splitlines()[-1]
+    assert last == f"interrupted before the run started: nothing in {out} was written or changed"
+    assert not out.exists()

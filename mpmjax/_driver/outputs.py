@@ -51,43 +51,51 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
     without the pictures)."""
     out, setup, cfg, state, advance, log = run.out, run.setup, run.cfg, run.state, run.advance, run.log
     sc = setup.scene
+    hazard = isinstance(advance, _hazard.HazardAdvance)  # output.hazard_maps (mpmjax._hazard, docs/output.md)
+    c: dict = {}  # what the steps compute for the later ones: summary, res (result.h5 read back), maps
+    pv = out / "plan_view.h5"
+
+    def measure():
+        c["gauge"] = _metrics.RunoutGauge.of(sc, setup.info)
+        c["summary"], c["deposit_warning"] = complete_summary(
+            run.base_summary, setup, state, run.acc, advance.schedule, run.compile_s, c["gauge"]
+        )
+        c["res"] = read_result(out / "result.h5")
+        c["maps"] = _hazard.final_maps(advance.maps, state, advance.grid) if hazard else None
+        if cfg["output.slump_test"]:  # slump height, spread and Pashias yield stress: mpmjax._slump, docs/slump-test.md
+            c["summary"]["slump_test"] = _slump.summary(c["res"])
+
+    def write_hazard():
+        c["summary"]["hazard"] = _hazard.write_hazard(out, cfg, advance.grid, c["maps"])
+        return c["summary"]["hazard"]["files"]
+
+    steps = [([], measure), (["result.xdmf"], lambda: write_xdmf(out / "result.h5"))]  # xdmf: ParaView / VisIt
+    if sc.dim == 3:
+        # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
+        steps.append((["plan_view.h5"], lambda: c["summary"].update(_metrics.plan_view_summary(c["res"], pv))))
+    if hazard:
+        steps.append(([HAZARD_FILES], write_hazard))
+    steps.append((["summary.json"], lambda: _write_progress(out, c["summary"], steps, at["step"])))
+    png = out / "result.png"
+    steps.append((["result.png"], lambda: plotting.plot_result(png, c["res"], c["summary"], cfg["name"])))
+    if hazard:
+        hpng = out / "hazard_maps.png"
+        steps.append(
+            (["hazard_maps.png"], lambda: plotting.plot_hazard_maps(hpng, cfg, advance.grid, c["maps"], c["summary"]))
+        )
+    if sc.dim == 3:
+        steps.append(
+            (["plan_view.png", "sections.png"], lambda: plotting.plot_3d_overview(c["res"], pv, c["summary"], out))
+        )
+    if animate:
+        steps.append((["animation.gif"], lambda: _write_animation(c["res"], out, sc.dim, quiet)))
+
     sig = Signals()  # SIGINT / SIGTERM raise Interrupted, held while a checkpoint or summary.json is written
     written = ["result.h5"]
     at = {"step": 0}
-    steps: list = []  # (files, write) in the order they are written
     try:
         with sig.hold():
             run.checkpoints.write(state, run.done, run.acc, advance)  # --resume writes the outputs from here
-        gauge = _metrics.RunoutGauge.of(sc, setup.info)
-        summary, deposit_warning = complete_summary(
-            run.base_summary, setup, state, run.acc, advance.schedule, run.compile_s, gauge
-        )
-        res = read_result(out / "result.h5")
-        hazard = isinstance(advance, _hazard.HazardAdvance)  # output.hazard_maps (mpmjax._hazard, docs/output.md)
-        maps = _hazard.final_maps(advance.maps, state, advance.grid) if hazard else None
-        if cfg["output.slump_test"]:  # slump height, spread and Pashias yield stress: mpmjax._slump, docs/slump-test.md
-            summary["slump_test"] = _slump.summary(res)
-
-        def write_hazard():
-            summary["hazard"] = _hazard.write_hazard(out, cfg, advance.grid, maps)
-            return summary["hazard"]["files"]
-
-        steps.append((["result.xdmf"], lambda: write_xdmf(out / "result.h5")))  # ParaView / VisIt sidecar
-        if sc.dim == 3:
-            # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
-            pv = out / "plan_view.h5"
-            steps.append((["plan_view.h5"], lambda: summary.update(_metrics.plan_view_summary(res, pv))))
-        if hazard:
-            steps.append(([HAZARD_FILES], write_hazard))
-        steps.append((["summary.json"], lambda: _write_progress(out, summary, steps, at["step"])))
-        steps.append((["result.png"], lambda: plotting.plot_result(out / "result.png", res, summary, cfg["name"])))
-        if hazard:
-            png, grid = out / "hazard_maps.png", advance.grid
-            steps.append((["hazard_maps.png"], lambda: plotting.plot_hazard_maps(png, cfg, grid, maps, summary)))
-        if sc.dim == 3:
-            steps.append((["plan_view.png", "sections.png"], lambda: plotting.plot_3d_overview(res, pv, summary, out)))
-        if animate:
-            steps.append((["animation.gif"], lambda: _write_animation(res, out, sc.dim, quiet)))
         for i, (files, write) in enumerate(steps):
             at["step"] = i
             check()  # a signal whose exception was dropped (mpmjax._received)
@@ -96,7 +104,7 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
         at["step"] = len(steps)
         check()
         with sig.hold():
-            write_summary(out / "summary.json", summary)  # status complete: every output is there
+            write_summary(out / "summary.json", c["summary"])  # status complete: every output is there
             (out / CHECKPOINT_NAME).unlink(missing_ok=True)  # complete: nothing left to resume
     except (Exception, KeyboardInterrupt) as e:
         ki = _interrupt_in(e)
@@ -105,8 +113,9 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
         raise _outputs_interrupted(run, sig, getattr(ki, "signum", 2), steps, at["step"]) from None
     finally:
         sig.restore()
+    summary = c["summary"]
     log(f"wrote {', '.join(str(out / f) for f in written)}")
-    _log_closing(log, summary, sc, gauge, deposit_warning)
+    _log_closing(log, summary, sc, c["gauge"], c["deposit_warning"])
     return summary
 
 
@@ -141,10 +150,10 @@ def _outputs_interrupted(run: Run, sig, signum: int, steps: list, now: int) -> I
         if f != HAZARD_FILES:
             (out / f).unlink(missing_ok=True)  # half written, or an earlier run's: not this run's
     resume = resume_command(out)
-    what = ", ".join(missing) or "summary.json's metrics"
+    what = ", ".join(missing) + (" and summary.json's metrics" if now == 0 else "")
     reason = (
         f"interrupted while the outputs were written: the run is complete in {out / 'result.h5'}, but {what} "
-        f"{'is' if len(missing) <= 1 else 'are'} missing; write them with: {resume}"
+        f"{'is' if len(missing) == 1 and now else 'are'} missing; write them with: {resume}"
     )
     doc = status_summary(
         run.base_summary,

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from .._build import build, start_warnings
 from .._io import config_hash
+from .._received import scope
 from .._schema import load_scene
 from .._shard import use_devices
 from .advance import compile_advance, make_advance
@@ -28,7 +29,7 @@ from .resume import (
     restore,
     resume_command,
 )
-from .signals import Interrupted, Signals
+from .signals import Interrupted, Signals, check
 from .status import OutputFailure, os_reason
 from .summary import base_summary, status_summary, write_summary_anyway
 
@@ -72,13 +73,26 @@ def run_scene(
     """
     lock = OutputLock(Path(out))
     try:
-        return _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock)
+        with scope():  # a signal noted in this run does not stop the next one in this process
+            return _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock)
     finally:
         lock.release()
 
 
 def _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock) -> dict:
     """``run_scene`` with the folder's ``lock`` (released by the caller)."""
+    try:
+        return _run_locked(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock)
+    except KeyboardInterrupt as e:
+        if isinstance(e, Interrupted) and e.message:
+            raise
+        # before the driver's own handler (the scene loaded and built, nothing written): say so
+        signum = getattr(e, "signum", signal.SIGINT)
+        note = f"interrupted before the run started: nothing in {out} was written or changed"
+        raise Interrupted(signum, note) from None
+
+
+def _run_locked(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock) -> dict:
     out = Path(out)
     ckpt = None
     check_output_folder(out)  # an existing file, an uncreatable or unwritable folder: exit 2, before building
@@ -101,11 +115,15 @@ def _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame,
     setup = build(cfg)
     if ckpt is not None:
         check_checkpoint(out, ckpt, setup)  # its frame and array shapes, before the state is used
+    # a signal whose exception was dropped while the scene was built (a jax gc callback drops it:
+    # mpmjax._received): stop before the folder is touched
+    check(f"interrupted before the run started: nothing in {out} was written or changed")
     make_output_folder(out)
     lock.acquire()  # before anything in the folder is created or truncated
     log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
     sig = Signals()  # from here Ctrl-C / SIGTERM raise Interrupted (while compiling: once the compiler returns)
     try:
+        check()  # one dropped between the check above and the handler
         run = _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint_every, log)
     except KeyboardInterrupt as e:
         sig.restore()

@@ -158,11 +158,14 @@ def guarded_output(command, args):
                     folder.rmdir()  # only if empty: the command wrote nothing
 
 
+_LAST: list = [None]  # the signal noted in the command that ran last (kept past its scope)
+
+
 def interrupted_by() -> int | None:
     """The signal that interrupted the command, if one did.  An ``Interrupted`` raised inside a
     ``jax.pure_callback`` (the calibration's model evaluations) reaches the command as the
     callback's ``XlaRuntimeError``; ``_status.run_command`` maps it back through this."""
-    return _received.received()
+    return _received.received() or _LAST[0]
 
 
 class _QuietAfterSignal(logging.Filter):
@@ -180,6 +183,7 @@ def interrupt_signals(name: str = "the command"):
     signals there only).  Each signal is noted first (``mpmjax._received``: a handler's exception
     can be dropped, and the loops check the note); one noted while the program started (its
     imports) stops the command here, before anything is written."""
+    _LAST[0] = None
     with _received.scope():
         if threading.current_thread() is not threading.main_thread():
             yield
@@ -197,6 +201,7 @@ def interrupt_signals(name: str = "the command"):
             _received.check(f"interrupted before {name} started: nothing was written")
             yield
         finally:
+            _LAST[0] = _received.received()  # the scope clears the note on its way out
             for s, h in old.items():
                 signal.signal(s, h)
             logging.getLogger("jax._src.callback").removeFilter(quiet)
