@@ -78,14 +78,18 @@ def _started_as_program() -> bool:
 
 
 def hold_startup_signals() -> bool:
-    """Started as the program, with Python's default handlers still in place: note SIGINT and
-    SIGTERM from now on instead of acting on them (the command's handler acts on the note).
+    """Started as the program, with Python's default handlers (or the signals ignored) still in
+    place: note SIGINT and SIGTERM from now on instead of acting on them (the command's handler
+    acts on the note).
     Returns whether the handlers were installed."""
     if not _started_as_program() or threading.current_thread() is not threading.main_thread():
         return False
-    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+    # SIG_IGN too: a job started in the background by a non-interactive shell inherits SIGINT
+    # ignored, and the command's own handler takes the signals over anyway once it starts (so a
+    # Ctrl-C in the first second would be lost where one a second later stops the command)
+    if signal.getsignal(signal.SIGINT) not in (signal.default_int_handler, signal.SIG_IGN):
         return False  # someone else (an embedding program) handles Ctrl-C
-    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+    if signal.getsignal(signal.SIGTERM) not in (signal.SIG_DFL, signal.SIG_IGN):
         return False
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda signum, frame: note(signum))

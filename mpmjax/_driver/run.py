@@ -81,19 +81,43 @@ def run_scene(
 
 def _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock) -> dict:
     """``run_scene`` with the folder's ``lock`` (released by the caller)."""
-    try:
-        return _run_locked(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock)
-    except KeyboardInterrupt as e:
-        if isinstance(e, Interrupted) and e.message:
-            raise
-        # before the driver's own handler (the scene loaded and built, nothing written): say so
-        signum = getattr(e, "signum", signal.SIGINT)
-        note = f"interrupted before the run started: nothing in {out} was written or changed"
-        raise Interrupted(signum, note) from None
-
-
-def _run_locked(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock) -> dict:
     out = Path(out)
+    try:
+        ckpt, scene, overrides, source, cfg, chash, setup = _load(scene, out, overrides, resume, lock)
+    except KeyboardInterrupt as e:
+        # before the driver's own handler (the scene loaded and built, nothing written): say so
+        note = f"interrupted before the run started: nothing in {out} was written or changed"
+        raise Interrupted(getattr(e, "signum", signal.SIGINT), note) from None
+    log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
+    sig = Signals()  # from here Ctrl-C / SIGTERM raise Interrupted (while compiling: once the compiler returns)
+    try:
+        check()  # one dropped between the check above and the handler
+        run = _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint_every, log)
+    except KeyboardInterrupt as e:
+        sig.restore()
+        kept = (
+            f"the checkpoint in {out / CHECKPOINT_NAME} is unchanged; resume with: {resume_command(out)}"
+            if ckpt is not None
+            else f"no result in {out} was written or changed"
+        )
+        raise Interrupted(getattr(e, "signum", signal.SIGINT), f"interrupted while compiling: {kept}") from None
+    except BaseException:
+        sig.restore()
+        raise
+    run_frames(run, sig, quiet, on_frame)
+    try:
+        return finish(run, animate, quiet)
+    except OSError as e:
+        reason = f"the run is complete in {out / 'result.h5'}, but writing its other outputs failed: {os_reason(e)}"
+        doc = status_summary(run.base_summary, "complete", complete=True, error=reason)
+        wrote = write_summary_anyway(out / "summary.json", doc)
+        said = "has the run facts and this message" if wrote else "could not be written"
+        raise OutputFailure(f"{reason}; summary.json {said}") from None
+
+
+def _load(scene, out: Path, overrides, resume: bool, lock) -> tuple:
+    """Vet the folder, read a resumed run's checkpoint, load, check and build the scene, then create
+    and lock the folder: ``(checkpoint, scene, overrides, source, cfg, config hash, setup)``."""
     ckpt = None
     check_output_folder(out)  # an existing file, an uncreatable or unwritable folder: exit 2, before building
     if resume:
@@ -120,31 +144,7 @@ def _run_locked(scene, out, overrides, quiet, checkpoint_every, resume, on_frame
     check(f"interrupted before the run started: nothing in {out} was written or changed")
     make_output_folder(out)
     lock.acquire()  # before anything in the folder is created or truncated
-    log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
-    sig = Signals()  # from here Ctrl-C / SIGTERM raise Interrupted (while compiling: once the compiler returns)
-    try:
-        check()  # one dropped between the check above and the handler
-        run = _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint_every, log)
-    except KeyboardInterrupt as e:
-        sig.restore()
-        kept = (
-            f"the checkpoint in {out / CHECKPOINT_NAME} is unchanged; resume with: {resume_command(out)}"
-            if ckpt is not None
-            else f"no result in {out} was written or changed"
-        )
-        raise Interrupted(getattr(e, "signum", signal.SIGINT), f"interrupted while compiling: {kept}") from None
-    except BaseException:
-        sig.restore()
-        raise
-    run_frames(run, sig, quiet, on_frame)
-    try:
-        return finish(run, animate, quiet)
-    except OSError as e:
-        reason = f"the run is complete in {out / 'result.h5'}, but writing its other outputs failed: {os_reason(e)}"
-        doc = status_summary(run.base_summary, "complete", complete=True, error=reason)
-        wrote = write_summary_anyway(out / "summary.json", doc)
-        said = "has the run facts and this message" if wrote else "could not be written"
-        raise OutputFailure(f"{reason}; summary.json {said}") from None
+    return ckpt, scene, overrides, source, cfg, chash, setup
 
 
 def _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint_every, log) -> Run:
