@@ -373,7 +373,7 @@ def signal_cases():
                       signal_at=("", 15.0, signal.SIGINT), stop_within_s=15, timeout_s=300))
     # steps in chunks of about a second: stopped within seconds, the finished case kept
     sw2 = ["sweep", TWIN, "--vary", "n=2,3", "--chunk", "1", "--out", "{tmp}/o", "--set", "domain.cell_size_m=0.03",
-           "--set", "time.t_end_s=60", "--set", "time.n_frames=2"]
+           "--set", "time.t_end_s=120", "--set", "time.n_frames=2"]
     cases.append(Case("sweep: SIGTERM in the second batch keeps the first", "signals", sw2, expect=143,
                       names=("1 of 2 cases finished and are kept in",), signal_at=("batch 1/2", 0.5, signal.SIGTERM),
                       stop_within_s=4.5, timeout_s=300))
