@@ -33,6 +33,7 @@ import json
 import math
 import os
 import re
+import signal
 import sys
 import time
 import zipfile
@@ -60,6 +61,7 @@ from .params import SCENE_KEYS
 __all__ = [
     "FIELD_KEYS",
     "NO_SENSITIVITY_M",
+    "kept_name",
     "merge_parts",
     "merge_sweep",
     "parse_vary",
@@ -123,42 +125,98 @@ def _on_profile(sc, axis) -> bool:
     return sc.dim == 2 and axis == 0
 
 
-def _case(mat, params, state0, x_prof, *, sc, axis, origin, spacing):
-    """One case of a sweep: material ``mat`` on the scene ``sc`` from ``state0`` -> (front per
-    frame [m], farthest particle per frame [m], kinetic energy per frame [J], lost particles,
-    final height profile on ``x_prof`` [m])."""
-    p = params._replace(material=mat)
-    st = mpmjax.restate(state0, sc, p)
-    final, fr = mpmjax.simulate(sc, st, p)
-    xs = jnp.concatenate([st.x[None], fr.x])
-    vs = jnp.concatenate([st.v[None], fr.v])
-    act = jnp.concatenate([st.active[None], fr.active])
-    far = jax.vmap(lambda x, a: mpmjax.runout(x, a, axis, origin, spacing))(xs, act)
-    far = jnp.where(jnp.any(act, axis=-1), far, 0.0)  # no active material yet: at the origin
-    if _on_profile(sc, axis):
-        fronts = jax.vmap(
-            lambda x, a: mpmjax.free_surface_front(x, st.vol0, a, bandwidth=sc.h, x_lo=sc.lo[0], x_hi=sc.hi[0])
-        )(xs, act)
-        fronts = jnp.where(jnp.any(act, axis=-1), fronts - origin, 0.0)
-    else:
-        fronts = far
-    ke = mpmjax.kinetic_energy(vs, jnp.broadcast_to(st.vol0, act.shape), act, mat.rho)
-    if sc.dim == 2:
-        prof = mpmjax.height_profile(final.x, st.vol0, final.active, x_prof, bandwidth=sc.h)
-    else:
-        prof = jnp.zeros_like(x_prof)
-    return fronts, far, ke, final.n_lost, prof
+@partial(jax.jit, static_argnames=("sc",))
+def _batch_start(mats, params, state0, *, sc):
+    """The lanes' initial states: the scene's, with each lane's material (``mpmjax.restate``)."""
+    return jax.vmap(lambda m: mpmjax.restate(state0, sc, params._replace(material=m)))(mats)
+
+
+@partial(jax.jit, static_argnames=("sc",))
+def _batch_steps(states, mats, params, n, *, sc):
+    """``n`` steps of every lane (``mpmjax.make_steps``: one program for any ``n``)."""
+    steps = mpmjax.make_steps(sc)
+    return jax.vmap(lambda s, m: steps(s, params._replace(material=m), n))(states, mats)
+
+
+@partial(jax.jit, static_argnames=("sc",))
+def _batch_frame(states, mats, params, *, sc):
+    """One whole frame of every lane (slab decomposition, which is not chunked: ``mpmjax.chunkable``)."""
+    chunk = mpmjax.make_chunk(sc)
+    return jax.vmap(lambda s, m: chunk(s, params._replace(material=m)))(states, mats)
 
 
 @partial(jax.jit, static_argnames=("sc", "axis", "origin", "spacing"))
-def _batch(mats, params, state0, x_prof, *, sc, axis, origin, spacing):
-    """Every case of a batch: ``mats`` holds the lanes; the scene's arrays are shared.  Compiled
-    once per scene, runout gauge, batch size and layout for the life of the process."""
-    return jax.vmap(lambda m: _case(m, params, state0, x_prof, sc=sc, axis=axis, origin=origin, spacing=spacing))(mats)
+def _batch_observe(states, mats, vol0, *, sc, axis, origin, spacing):
+    """Per lane, of one frame: front [m], farthest particle [m] (both from the runout origin; at
+    the origin while no material is active) and kinetic energy [J]."""
+
+    def one(st, mat):
+        some = jnp.any(st.active)
+        far = jnp.where(some, mpmjax.runout(st.x, st.active, axis, origin, spacing), 0.0)
+        if _on_profile(sc, axis):
+            front = mpmjax.free_surface_front(st.x, vol0, st.active, bandwidth=sc.h, x_lo=sc.lo[0], x_hi=sc.hi[0])
+            front = jnp.where(some, front - origin, 0.0)
+        else:
+            front = far
+        return front, far, mpmjax.kinetic_energy(st.v, vol0, st.active, mat.rho)
+
+    return jax.vmap(one)(states, mats)
+
+
+@partial(jax.jit, static_argnames=("sc",))
+def _batch_final(states, vol0, x_prof, *, sc):
+    """Per lane, of the final state: particles lost and the height profile on ``x_prof`` (2D)."""
+
+    def one(st):
+        if sc.dim == 2:
+            prof = mpmjax.height_profile(st.x, vol0, st.active, x_prof, bandwidth=sc.h)
+        else:
+            prof = jnp.zeros_like(x_prof)
+        return st.n_lost, prof
+
+    return jax.vmap(one)(states)
+
+
+def _run_batch(mats, shared, how, layout, pacer):
+    """Every case of one batch (``mats`` holds the lanes), frame by frame and each frame in chunks
+    of steps (``mpmjax.run_chunked``), so that Ctrl-C / SIGTERM is acted on within about a second
+    (``mpmjax.Pacer``) however long a batch or a frame is, not only when the batch ends (issue 35).
+    Returns (front per frame, farthest particle per frame, kinetic energy per frame, lost
+    particles, final height profile) per lane as numpy arrays."""
+    params, state0, x_prof = shared
+    sc = how["sc"]
+    states = _batch_start(mats, params, state0, sc=sc)
+    obs = [_batch_observe(states, mats, state0.vol0, **how)]
+    for _ in range(sc.n_frames):
+        if mpmjax.chunkable(sc):
+            states = mpmjax.run_chunked(
+                lambda s, n: _batch_steps(s, mats, params, n, sc=sc),
+                states,
+                sc.steps_per_frame,
+                pacer,
+                between=mpmjax.check_interrupted,
+            )
+        else:
+            states = jax.block_until_ready(_batch_frame(states, mats, params, sc=sc))
+            mpmjax.check_interrupted()
+        obs.append(_batch_observe(states, mats, state0.vol0, **how))
+    lost, prof = _batch_final(states, state0.vol0, x_prof, sc=sc)
+    obs, lost, prof = layout.gather((obs, lost, prof))
+    fronts, far, ke = (np.stack([o[i] for o in obs], axis=1) for i in range(3))
+    return fronts, far, ke, lost, prof
 
 
 def sweep(
-    scene, vary: dict, *, overrides=None, chunk: int | None = None, profile_x_m=None, progress=True, shard=None
+    scene,
+    vary: dict,
+    *,
+    overrides=None,
+    chunk: int | None = None,
+    profile_x_m=None,
+    progress=True,
+    shard=None,
+    keep=None,
+    resume: bool = False,
 ):
     """Run every combination of ``vary`` on ``scene`` (built-in name or TOML path) with the
     scene ``overrides``.  Returns a dict with ``cases`` (list of name -> value), per-case
@@ -172,9 +230,18 @@ def sweep(
     (``calibration.distributed.shard_range``; ``cases`` and ``case_index`` say which), with the
     time step of the whole grid, for ``write_part`` and ``merge_parts``.  Raises ``SceneError``
     (from ``mpmjax``) for invalid values, ``ValueError`` for names that are not material
-    parameters of the scene."""
+    parameters of the scene.
+
+    ``keep``: a file (``kept_name``) where the finished cases are written, atomically, after every
+    batch; a sweep that finds there the cases of the same sweep (scene, overrides, ``vary``,
+    ``shard``, profile points) runs only the others, and one that finds another sweep's refuses
+    (``ValueError``) rather than lose them; ``resume``: there must be such a file.  On SIGINT /
+    SIGTERM (``mpmjax.Interrupted``, acted on between chunks of steps) the batch under way is
+    dropped, and the message says how many cases are kept."""
     overrides = list(overrides or [])
     cfg = mpmjax.load_scene(scene, overrides)
+    identity = _identity(cfg, vary, shard, profile_x_m)
+    kept = None if keep is None else _read_kept(Path(keep), identity, resume)
     mpmjax.check_memory(cfg)  # before anything is built: a case that cannot fit is refused (MemoryRefused, exit 2)
     setup = mpmjax.build(cfg)
     fields = type(setup.params.material)._fields
@@ -191,7 +258,8 @@ def sweep(
         ov = overrides + [f"{FIELD_KEYS[k]}={v!r}" for k, v in c.items()]
         ci = mpmjax.load_scene(scene, ov)
         pi = mpmjax.make_params(ci, setup.scene.dim, setup.scene.dtype)
-        lim = mpmjax.time_step_limits(ci, pi, np.asarray(setup.state.x), np.asarray(setup.state.v), setup.scene.rheology)
+        x0, v0 = np.asarray(setup.state.x), np.asarray(setup.state.v)
+        lim = mpmjax.time_step_limits(ci, pi, x0, v0, setup.scene.rheology)
         limits.append(lim["dt_limit_s"])
     if min(limits) < setup.scene.dt * (1 - 1e-9):
         setup = mpmjax.build(mpmjax.load_scene(scene, overrides + [f"numerics.dt_s={min(limits)!r}"]))
@@ -203,13 +271,18 @@ def sweep(
 
     n_all = len(cases)
     share = range(n_all) if shard is None else shard_range(n_all, shard)
+    index = list(share)
     cases_run = [cases[i] for i in share]
     n = len(cases_run)
+    times = np.arange(sc.n_frames + 1) * sc.steps_per_frame * sc.dt
+    # cases finished by an earlier, interrupted run of this sweep (``keep``): case index -> results
+    done = {} if kept is None else dict(kept)
+    todo = [k for k, i in enumerate(index) if i not in done]
     n_dev = jax.device_count()
-    ch = _default_chunk(sc, max(n, 1)) if chunk is None else int(chunk)
+    ch = _default_chunk(sc, max(len(todo), 1)) if chunk is None else int(chunk)
     if ch < 1:
         raise ValueError(f"chunk = {chunk}; allowed range: >= 1")
-    ch = min(ch, max(n, 1))
+    ch = min(ch, max(len(todo), 1))
     ch = int(math.ceil(ch / n_dev) * n_dev)  # whole batches per device (of every process)
     layout = BatchLayout(ch)
     # the scene's arrays as arguments (replicated over the batch mesh), not closed over: one
@@ -220,28 +293,35 @@ def sweep(
     cols = {k: np.asarray([c[k] for c in cases_run], npdt) for k in vary}
     base = {f: np.asarray(getattr(mat0, f)) for f in mat0._fields}
     say = progress and is_writer()
-    results = []
+    if say and done:
+        sys.stderr.write(f"sweep: {len(done)} of {n} cases already finished (kept in {keep}); running the others\n")
+    pacer = mpmjax.Pacer()
     t0 = time.perf_counter()
-    n_chunks = math.ceil(n / ch)
+    n_chunks = math.ceil(len(todo) / ch)
     for b in range(n_chunks):
-        idx = np.minimum(np.arange(b * ch, (b + 1) * ch), n - 1)  # pad with the last case
+        sel = todo[b * ch : (b + 1) * ch]
+        idx = np.asarray(sel + [sel[-1]] * (ch - len(sel)))  # pad with the last case
         lanes = {f: np.broadcast_to(a, (ch,) + a.shape).copy() for f, a in base.items()}
         lanes.update({k: cols[k][idx] for k in vary})
-        # wait in block_until_ready, which lets the signal handlers run (Ctrl-C within seconds, issue 35);
-        # converting the result waits holding the interpreter, and a signal waited for the whole batch
-        out = layout.gather(jax.block_until_ready(_batch(layout.put(mat0._replace(**lanes)), *shared, **how)))
-        results.append(jax.tree.map(lambda a, m=min(ch, n - b * ch): a[:m], out))
+        try:
+            out = _run_batch(layout.put(mat0._replace(**lanes)), shared, how, layout, pacer)
+        except KeyboardInterrupt as e:
+            note = _interrupted_note(len(done), n, keep)
+            raise mpmjax.Interrupted(getattr(e, "signum", signal.SIGINT), note) from None
+        for j, k in enumerate(sel):
+            done[index[k]] = tuple(a[j] for a in out)
+        if keep is not None:
+            _write_kept(keep, identity, done)  # atomically, after every batch: a signal loses at most this batch
         if say:
             el = time.perf_counter() - t0
             sys.stderr.write(
-                f"sweep: batch {b + 1}/{n_chunks} ({min((b + 1) * ch, n)}/{n} cases) elapsed {el:6.1f} s, "
+                f"sweep: batch {b + 1}/{n_chunks} ({len(done)}/{n} cases) elapsed {el:6.1f} s, "
                 f"left ~{el / (b + 1) * (n_chunks - b - 1):6.1f} s\n"
             )
             sys.stderr.flush()
     wall = time.perf_counter() - t0
-    times = np.arange(sc.n_frames + 1) * sc.steps_per_frame * sc.dt
-    if results:
-        fronts, far, ke, lost, prof = (np.concatenate([r[i] for r in results]) for i in range(5))
+    if n:
+        fronts, far, ke, lost, prof = (np.stack([np.asarray(done[i][j]) for i in index]) for j in range(5))
     else:  # a job of a --shard array with no case of its own
         nf = len(times)
         fronts, far, ke = (np.zeros((0, nf)) for _ in range(3))
@@ -275,8 +355,110 @@ def sweep(
         "n_particles": sc.n_particles,
         "n_steps": sc.n_steps,
         "wall_s": wall,
+        "cases_resumed": n - len(todo),
         "dim": sc.dim,
     }
+
+
+def kept_name(shard=None) -> str:
+    """The file of a sweep's finished cases while it is not complete (``sweep(keep=...)``):
+    ``sweep-partial.npz``, or ``part-I-of-N.partial.npz`` for job I of a ``--shard`` array."""
+    return "sweep-partial.npz" if shard is None else f"part-{shard[0]}-of-{shard[1]}.partial.npz"
+
+
+def _identity(cfg: dict, vary: dict, shard, profile_x_m) -> dict:
+    """What makes two runs the same sweep, whose finished cases one may take from the other."""
+    return {
+        "scene": cfg["name"],
+        "config_hash": mpmjax.config_hash(cfg),
+        "vary": {k: [float(x) for x in v] for k, v in vary.items()},
+        "shard": None if shard is None else [int(shard[0]), int(shard[1])],
+        "profile_x_m": None if profile_x_m is None else [float(x) for x in np.asarray(profile_x_m).ravel()],
+    }
+
+
+_KEPT_ARRAYS = ("case_index", "runout_m", "runout_farthest_particle_m", "kinetic_energy_J", "n_lost", "profile_h_m")
+_WHAT = {
+    "scene": "the scene",
+    "config_hash": "the scene's keys or --set overrides",
+    "vary": "--vary",
+    "shard": "--shard",
+    "profile_x_m": "the profile points",
+}
+
+
+def _write_npz(path: Path, doc: dict, arrays: dict) -> None:
+    """``path`` (npz: ``doc`` as JSON in ``shared``, and ``arrays``) through a temporary file, an
+    fsync and an atomic rename: a reader sees the old file or the new one, never half of one."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            np.savez(f, shared=np.asarray(json.dumps(_jsonable(doc))), **arrays)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _write_kept(path: Path, identity: dict, done: dict) -> None:
+    """The finished cases ``done`` (case index -> (front, farthest, kinetic energy per frame,
+    lost, profile)) to ``path``."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    ii = sorted(done)
+    arrays = {"case_index": np.asarray(ii, int)}
+    for j, k in enumerate(_KEPT_ARRAYS[1:]):
+        arrays[k] = np.stack([np.asarray(done[i][j]) for i in ii])
+    _write_npz(Path(path), {"identity": identity}, arrays)
+
+
+def _read_kept(path: Path, identity: dict, resume: bool) -> dict | None:
+    """The finished cases in ``path`` (``_write_kept``) when they are of the sweep ``identity``;
+    None where there is no file (``ValueError`` with ``resume``); ``ValueError`` naming what
+    differs where they are of another sweep, and naming the file where it cannot be read."""
+    folder = path.parent
+    if not path.is_file():
+        if resume:
+            complete = (folder / "sweep.json").is_file() or any(folder.glob("part-*-of-*.npz"))
+            raise ValueError(
+                f"--resume: no unfinished sweep in {folder} ({path.name} not there)"
+                + ("; the sweep there is complete" if complete else "")
+                + "; allowed: the --out of an interrupted sweep (or leave --resume out to start one)"
+            )
+        return None
+    try:
+        with np.load(path) as z:
+            doc = json.loads(str(z["shared"]))
+            arrays = {k: np.asarray(z[k]) for k in _KEPT_ARRAYS}
+        old = doc["identity"]
+        if not isinstance(old, dict):
+            raise TypeError("identity is not a table")
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(
+            f"{path}: the finished cases of an interrupted sweep cannot be read ({type(e).__name__}: {e}); "
+            f"allowed: a file written by mpmjax sweep (move it away to start the sweep afresh)"
+        ) from None
+    diff = [k for k in _WHAT if json.dumps(old.get(k)) != json.dumps(identity[k])]
+    if diff:
+        raise ValueError(
+            f"--out {folder}: {path.name} holds {len(arrays['case_index'])} finished case(s) of another sweep "
+            f"(it differs in {', '.join(_WHAT[k] for k in diff)}); allowed: the same command to continue it, or "
+            f"another --out (or move {path.name} away to start afresh: its cases would be lost)"
+        )
+    cols = [arrays[k] for k in _KEPT_ARRAYS[1:]]
+    return {int(i): tuple(c[j] for c in cols) for j, i in enumerate(arrays["case_index"])}
+
+
+def _interrupted_note(n_done: int, n: int, keep) -> str:
+    """The one line of an interrupted sweep: what is kept and how to continue."""
+    if keep is None:
+        return f"interrupted: {n_done} of {n} cases had finished (not kept: no output folder)"
+    if not n_done:
+        return f"interrupted before any of the {n} cases finished; nothing was kept"
+    return (
+        f"interrupted: {n_done} of {n} cases finished and are kept in {keep}; run the same command again "
+        f"(or with --resume) to run only the other {n - n_done}"
+    )
 
 
 def _jsonable(v):
@@ -337,10 +519,13 @@ def write_sweep(res: dict, out) -> list[Path]:
     del units
     paths = [out / "sweep.csv", out / "sweep.json"]
     for name, fig in sweep_figures(res).items():
+        tmp = out / f".{name}.{os.getpid()}.tmp.png"
         try:
-            fig.savefig(out / name, dpi=110)
+            fig.savefig(tmp, dpi=110)  # then renamed: a signal never leaves half a picture
+            os.replace(tmp, out / name)
         finally:
             plt.close(fig)
+            tmp.unlink(missing_ok=True)
         paths.append(out / name)
     return paths
 
@@ -377,12 +562,7 @@ def write_part(res: dict, out) -> Path:
     arrays = {k: np.asarray(res[k]) for k in PER_CASE}
     names = list(res["vary"])
     arrays["cases"] = np.asarray([[c[k] for k in names] for c in res["cases"]], float).reshape(-1, len(names))
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, shared=np.asarray(json.dumps(_jsonable(shared))), **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    _write_npz(path, shared, arrays)
     return path
 
 
@@ -472,13 +652,19 @@ def run_sweep(
     num_processes: int | None = None,
     process_id: int | None = None,
     distributed: bool = False,
+    resume: bool = False,
 ) -> dict:
     """The whole of ``mpmjax sweep`` as one call: ``sweep`` over ``vary`` (``parse_vary``'s dict)
     on ``devices`` host devices, in one ``jax.distributed`` job (``coordinator``, ...,
     ``calibration.distributed``) or as the job ``shard = (I, N)`` of an array; writes ``out``
     (``write_sweep``, or ``write_part`` for a shard; only process 0 of a distributed job), prints
     the table unless ``quiet`` and returns ``sweep``'s dict.  Must run before any JAX computation
-    of the process (the host devices and the distributed job are set up first)."""
+    of the process (the host devices and the distributed job are set up first).
+
+    The finished cases are kept in ``out`` (``kept_name``) after every batch until the outputs are
+    written: an interrupted sweep run again (the same command, or with ``resume``) runs only the
+    cases not finished.  Not in a ``jax.distributed`` job, whose processes would each have to read
+    the same file to agree on the cases left (its batches are still chunked)."""
     options = check_join_options(coordinator, num_processes, process_id, distributed)
     make_local_devices(devices)
     if shard is not None and options is not None:
@@ -489,13 +675,21 @@ def run_sweep(
     join(options)  # before any JAX computation; nothing for a single-process run
     check_local_devices(devices)
     writer = is_writer()
-    res = sweep(scene, vary, overrides=overrides, chunk=chunk, progress=not quiet, shard=shard)
+    keep = Path(out) / kept_name(shard) if options is None else None
+    if resume and keep is None:
+        raise DistributedError(
+            "--resume is not available in a jax.distributed job; allowed: a single-process sweep or --shard"
+        )
+    res = sweep(
+        scene, vary, overrides=overrides, chunk=chunk, progress=not quiet, shard=shard, keep=keep, resume=resume
+    )
     how = (
         f"in batches of {res['chunk']} on {res['n_devices']} device(s) of {res['n_processes']} process(es), "
         f"{res['wall_s']:.1f} s"
     )
     if shard is not None:
         path = write_part(res, out)
+        keep.unlink(missing_ok=True)  # the part has every case now
         if not quiet:
             ci = res["case_index"]
             share = f"cases {ci[0]} .. {ci[-1]}" if len(ci) else "no case"
@@ -504,6 +698,8 @@ def run_sweep(
     if not writer:  # the other processes of a distributed job leave --out to process 0
         return res
     paths = write_sweep(res, out)
+    if keep is not None:
+        keep.unlink(missing_ok=True)  # sweep.json has every case now
     if not quiet:
         _print_sweep(res, paths, how)
     return res

@@ -6,7 +6,9 @@ Public API (modules are private; names are re-exported here):
   ``builtin_scenes``, ``SceneError``, ``SCHEMA``
 * the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``;
   ``flat_transfers`` (a context for forward-mode Jacobians on the CPU)
-* time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``
+* time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``; chunked host-side
+  stepping: ``make_steps`` (any number of steps, one program), ``Pacer``, ``run_chunked``,
+  ``chunkable``; ``check_interrupted`` (a signal whose exception was dropped, ``_received``)
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
   parameter NamedTuples; adding a law: ``Law``, ``Param``, ``Option``, ``Internal``,
   ``register_law``, ``unregister_law``; ``material_parameters()`` (name -> ``Param``: scene
@@ -16,14 +18,18 @@ Public API (modules are private; names are re-exported here):
 * observables: ``runout``; differentiable ``height_profile``, ``smooth_front``,
   ``deposited_volume``, ``particle_volume``, ``gaussian_kernel``; metrics ``kinetic_energy``,
   ``time_to_rest``
-* files: ``atomic_write_text``
+* files: ``atomic_write_text``, ``config_hash``
 * runs on disk (what ``mpmjax run`` does): ``run_scene`` (result.h5, summary.json, plots,
   checkpoint and resume), ``RunFailure`` (a failed health check), ``Interrupted`` (SIGINT/SIGTERM)
 * plots of a saved run: the ``plotting`` module (``particles``, ``profiles``,
   ``runout_vs_time``, ``animate``)
 """
 
-from ._fusion import prefer_xla_reductions
+from ._received import hold_startup_signals
+
+hold_startup_signals()  # the program: Ctrl-C / SIGTERM during the imports below are noted, not lost (_received)
+
+from ._fusion import prefer_xla_reductions  # noqa: E402
 
 prefer_xla_reductions()  # before any JAX computation starts the backends (docs/performance.md, "Fusion boundaries")
 
@@ -32,7 +38,7 @@ from ._build import STEPS_WARN, Setup, build, estimate_run_time_s, make_params, 
 from ._constitutive import tait_pressure
 from ._driver import Interrupted, MemoryRefused, check_memory, run_scene
 from ._health import RunFailure
-from ._io import atomic_write_text
+from ._io import atomic_write_text, config_hash
 from ._metrics import kinetic_energy, time_to_rest
 from ._observables import (
     FRONT_FRACTION,
@@ -44,6 +50,7 @@ from ._observables import (
     runout,
     smooth_front,
 )
+from ._received import check as check_interrupted
 from ._rheology import (
     Bingham,
     BinghamParams,
@@ -62,7 +69,7 @@ from ._rheology import (
 from ._rheology import parameters as material_parameters
 from ._scene import Gate, Params, Scene, State, Wall, init_state, restate
 from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
-from ._simulate import Frame, make_advance, make_chunk, run, simulate
+from ._simulate import Frame, Pacer, chunkable, make_advance, make_chunk, make_steps, run, run_chunked, simulate
 from ._step import make_step
 from ._transfer import flat_transfers, make_p2g
 from ._version import __version__ as __version__  # re-exported
@@ -100,6 +107,8 @@ __all__ = [
     "kinetic_energy",
     "time_to_rest",
     "atomic_write_text",
+    "config_hash",
+    "check_interrupted",
     "Bingham",
     "BinghamParams",
     "Coussot",
@@ -118,6 +127,10 @@ __all__ = [
     "Frame",
     "make_advance",
     "make_chunk",
+    "make_steps",
+    "chunkable",
+    "Pacer",
+    "run_chunked",
     "run",
     "simulate",
     "make_p2g",

@@ -58,7 +58,47 @@ def make_rheology(cfg: dict):
     return law(**{o.name: cfg[o.key] for o in law.options})
 
 
-def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def bodies_below_terrain(cfg: dict, terrain, meshes: list) -> list[str]:
+    """Bodies that start below the terrain surface (``terrain.type`` != none; ``meshes``: each
+    body's particles, ``seed_bodies(per_body=...)``).
+
+    A body wholly below it is a ``SceneError`` naming the body, its top and the surface height
+    over it: the step lifts every particle below the surface onto it, so such a body would
+    silently become a film on the surface, nothing like the body given (issue 35: it ran without
+    a word).  A body partly below it is a warning (returned, for ``start_warnings``): a box on a
+    sloped bed dips a corner into the slope, and lifting those few particles is the documented
+    contact; the warning gives the share lifted, since the body's shape and the material's volume
+    where it is lifted differ from the input."""
+    if terrain is None:
+        return []
+    warnings = []
+    for i, mesh in enumerate(meshes):
+        if not len(mesh):
+            continue
+        surface = terrain.height(mesh[:, :-1])
+        below = mesh[:, -1] < surface
+        lo, hi = _bodies.bounds(cfg["bodies"][i], mesh.shape[1])
+        what = f"bodies[{i}] ({_bodies.kind(cfg['bodies'][i])}, from {lo.tolist()} to {hi.tolist()} m)"
+        vertical = "xyz"[mesh.shape[1] - 1]
+        if below.all():
+            raise SceneError(
+                f"{what} lies wholly below the terrain surface: its highest particle is at {vertical} = "
+                f"{float(mesh[:, -1].max()):.4g} m, where the surface under the body is at {vertical} = "
+                f"{float(surface.min()):.4g} to {float(surface.max()):.4g} m (terrain.*); allowed: a body above the "
+                f"surface: raise bodies[{i}] to rest on it, or lower the terrain"
+            )
+        if below.any():
+            warnings.append(
+                f"{what} starts {100 * below.mean():.3g} % below the terrain surface ({int(below.sum())} of "
+                f"{len(mesh)} particles, down to {float((surface - mesh[:, -1])[below].max()):.3g} m under it): "
+                "they are lifted onto the surface at the first step, so the body's shape and volume there differ from "
+                f"the input; raise bodies[{i}] to rest on the surface (it rises to {vertical} = "
+                f"{float(surface.max()):.4g} m under the body)"
+            )
+    return warnings
+
+
+def seed_bodies(cfg: dict, per_body: list | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Regular particle seeding: ``ppc`` per axis per cell.  Returns x (n, dim) [m],
     vol0 (n,) [m^dim] and v (n, dim) [m/s].
 
@@ -69,7 +109,8 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Overlapping bodies are seeded as their union: a particle of a later body that lies inside
     (or on the surface of) an earlier body is dropped, so overlapping material is not seeded
     twice (two boxes overlapping by half used to hold 4/3 of their union's mass); where bodies
-    overlap, the earlier body's particles (and velocity) are kept."""
+    overlap, the earlier body's particles (and velocity) are kept.  ``per_body``: a list that gets
+    each body's particle positions (after that removal)."""
     dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
     dx = h / ppc
     xs, vols, vs = [np.zeros((0, dim))], [np.zeros(0)], [np.zeros((0, dim))]
@@ -96,6 +137,8 @@ def seed_bodies(cfg: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             keep &= ~_bodies.contains(e, mesh)
         earlier.append(b)
         mesh = mesh[keep]
+        if per_body is not None:
+            per_body.append(mesh)
         xs.append(mesh)
         vols.append(np.full(len(mesh), vol))
         vs.append(np.broadcast_to(np.asarray(b.get("velocity_m_s", [0.0] * dim), float), mesh.shape))
@@ -345,8 +388,10 @@ def build(cfg: dict) -> Setup:
         jax.config.update("jax_enable_x64", True)
     params = make_params(cfg, dim, dtype)
     rheology = make_rheology(cfg)
-    x, vol0, v = seed_bodies(cfg)
+    meshes: list = []
+    x, vol0, v = seed_bodies(cfg, meshes)
     terrain = terrain_of(cfg)
+    buried = bodies_below_terrain(cfg, terrain, meshes)  # SceneError for a body wholly below the surface
     release = None
     if cfg["release.region_map_m"] is not None:
         x, vol0, v, release = _add_release(cfg, terrain, x, vol0, v)
@@ -506,6 +551,8 @@ def build(cfg: dict) -> Setup:
         runout_origin_m=origin_r,
         particle_spacing_m=h / cfg["numerics.ppc"],
     )
+    if buried:
+        info["bodies_below_terrain"] = buried
     if release is not None:
         info["release"] = {k: a for k, a in release.items() if k != "back_m"}
     map_ = _dem.map_info(cfg)
@@ -562,10 +609,12 @@ def start_warnings(setup: Setup) -> list[str]:
       t_end / n_frames must be a whole number of steps, so a frame interval shorter than the
       step makes each frame one step of exactly that interval;
     * a run of more than ``STEPS_WARN`` steps, naming what sets the step (the bulk modulus for a
-      wave-speed limit), with the estimated run time (``estimate_run_time_s``)."""
+      wave-speed limit), with the estimated run time (``estimate_run_time_s``);
+    * a body that starts partly below the terrain surface (``bodies_below_terrain``; wholly
+      below is an error)."""
     cfg, sc, info = setup.cfg, setup.scene, setup.info
     h, dim = sc.h, sc.dim
-    out = []
+    out = list(info.get("bodies_below_terrain", []))  # bodies partly below the terrain (bodies_below_terrain)
     for i, b in enumerate(cfg["bodies"]):
         box = _bodies.kind(b) == "box"
         lo, hi = _bodies.bounds(b, dim)

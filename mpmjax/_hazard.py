@@ -40,8 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._dem import NODATA, write_raster
+from ._received import check
 from ._scene import Params, Scene, State
 from ._shard import AXIS
+from ._simulate import Pacer, chunkable, run_chunked
 from ._slab import make_slab_advance
 from ._step import make_step
 
@@ -155,13 +157,15 @@ def make_hazard_advance(scene: Scene, grid: HazardGrid):
 
     step = make_step(scene)
 
-    def advance(state: State, maps: HazardMaps, params: Params):
-        def body(carry, _):
+    def advance(state: State, maps: HazardMaps, params: Params, n):
+        # ``n`` steps (an int32, one program for any n): the driver steps a frame in chunks
+        # (``_simulate.run_chunked``); the maps count the steps themselves, so any chunking samples alike
+        def body(i, carry):
             s, m = carry
             s = step(s, params)
-            return (s, sample(m, s)), None
+            return s, sample(m, s)
 
-        return jax.lax.scan(body, (state, maps), None, length=scene.steps_per_frame)[0]
+        return jax.lax.fori_loop(0, n, body, (state, maps))
 
     return jax.jit(advance)
 
@@ -171,12 +175,15 @@ class HazardAdvance:
     ``_simulate.StagedAdvance`` (always the whole buffer), keeping the maps in ``self.maps``
     (updated once the frame is computed)."""
 
-    def __init__(self, scene: Scene, state: State, params: Params, grid: HazardGrid):
+    def __init__(self, scene: Scene, state: State, params: Params, grid: HazardGrid, pacer=None, between=check):
         self.scene, self.grid = scene, grid
         self.maps = init_maps(grid, state.x.dtype)
         self.schedule = (scene.n_particles,) * scene.n_frames
         self.fallbacks = 0
-        self._program = make_hazard_advance(scene, grid).lower(state, self.maps, params).compile()
+        self.chunked = chunkable(scene)
+        self.pacer, self.between = pacer or Pacer(), between
+        args = (state, self.maps, params) + ((np.int32(1),) if self.chunked else ())
+        self._program = make_hazard_advance(scene, grid).lower(*args).compile()
 
     def sizes(self, first_frame: int = 0) -> list[int]:
         return [self.scene.n_particles]
@@ -185,7 +192,15 @@ class HazardAdvance:
         return self._program
 
     def __call__(self, i: int, state: State, params: Params) -> State:
-        new, self.maps = self._program(state, self.maps, params)
+        """Frame ``i``: in chunks of steps where the scene is chunkable (``_simulate.StagedAdvance``)."""
+        if not self.chunked:
+            new, self.maps = self._program(state, self.maps, params)
+            return new
+        prog = self._program
+        spf = self.scene.steps_per_frame
+        new, self.maps = run_chunked(
+            lambda c, k: prog(c[0], c[1], params, k), (state, self.maps), spf, self.pacer, self.between
+        )
         return new
 
     def to_json(self) -> dict:

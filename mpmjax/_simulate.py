@@ -32,6 +32,7 @@ differentiable path used by calibration) always steps the full buffer.
 from __future__ import annotations
 
 import math
+import time
 from typing import NamedTuple
 
 import jax
@@ -39,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._fusion import SAVED, on_cpu
+from ._received import check
 from ._scene import Params, Scene, State
 from ._shard import AXIS
 from ._slab import make_slab_advance
@@ -102,6 +104,78 @@ def make_chunk(scene: Scene, n_steps: int | None = None, recompute: bool = True)
         return jax.lax.scan(body, state, None, length=length)[0]
 
     return jax.checkpoint(chunk) if recompute else chunk
+
+
+def chunkable(scene: Scene) -> bool:
+    """Whether a frame of ``scene`` can be stepped in chunks of any number of steps (``make_steps``):
+    not on slabs (``numerics.decomposition = "slab"``), whose advance deals the particles out to
+    the devices at the start of each call, so that a chunk boundary would change where they are
+    dealt out, and with it the order of the grid sums."""
+    return not (scene.devices > 1 and scene.decomposition == "slab")
+
+
+def make_steps(scene: Scene):
+    """``steps(state, params, n) -> state``: ``n`` steps, ``n`` an int32 that may be traced, so that
+    one compiled program steps any number of them (a ``lax.fori_loop`` with a dynamic trip
+    count).  A frame stepped as chunks of any lengths gives the frame's ``make_chunk`` state bit
+    for bit: the loop body is the same step, compiled the same way (tests/test_chunked_frames.py).
+    Forward only (no ``jax.checkpoint``: it is for the host-side drivers, which call it chunk by
+    chunk so that a signal is seen between chunks: ``Pacer``).  Not on slabs (``chunkable``)."""
+    if not chunkable(scene):
+        raise ValueError("make_steps: slab decomposition steps whole frames only (_simulate.chunkable)")
+    step = make_step(scene)
+
+    def steps(state, params, n):
+        # the per-step checkpoint of make_chunk, so that the body is compiled as it is there (it does
+        # nothing in a forward pass, but is kept for the very same program)
+        per_step = on_cpu()
+        policy = jax.checkpoint_policies.save_only_these_names(*SAVED)
+        one = jax.checkpoint(step, policy=policy) if per_step else step
+        return jax.lax.fori_loop(0, n, lambda i, s: one(s, params), state)
+
+    return steps
+
+
+CHUNK_S = 1.0  # the wall time a chunk of steps aims at: a signal is acted on within about this
+
+
+class Pacer:
+    """How many steps the next chunk of a chunked frame takes (``make_steps``), so that a chunk
+    takes about ``target_s`` of wall time and a signal is seen within seconds however long a frame
+    is: it starts at ``first`` step(s) and, after each chunk (``took``), sets the count from the
+    measured time per step, growing at most fourfold a chunk (the first call may include a
+    compilation or a cold cache).  A frame shorter than ``target_s`` is one chunk, one call, as
+    before the frames were chunked."""
+
+    def __init__(self, target_s: float = CHUNK_S, first: int = 1):
+        self.target_s, self.n = float(target_s), max(1, int(first))
+
+    def next(self, left: int) -> int:
+        """The steps of the next chunk when ``left`` steps of the frame remain."""
+        return max(1, min(self.n, int(left)))
+
+    def took(self, n: int, seconds: float) -> None:
+        """A chunk of ``n`` steps took ``seconds``."""
+        cap = 4 * max(self.n, int(n))
+        ideal = cap if seconds <= 0 else n * self.target_s / seconds
+        self.n = int(max(1, min(ideal, cap)))
+
+
+def run_chunked(steps, state, n_steps: int, pacer: Pacer, between=None):
+    """``n_steps`` steps of ``steps(state, n) -> state`` in chunks paced by ``pacer``: after each
+    chunk the result is waited for (``jax.block_until_ready``, in which Python's signal handlers
+    run) and ``between()`` is called (a driver checks there for a signal its handler could not
+    raise).  Returns the state after the last step."""
+    left = int(n_steps)
+    while left > 0:
+        n = pacer.next(left)
+        t0 = time.perf_counter()
+        state = jax.block_until_ready(steps(state, np.int32(n)))
+        pacer.took(n, time.perf_counter() - t0)
+        left -= n
+        if between is not None:
+            between()
+    return state
 
 
 def state_bytes(state: State) -> int:
@@ -232,27 +306,70 @@ def make_prefix_advance(scene: Scene, n: int):
     return jax.jit(advance)
 
 
+def make_prefix_steps(scene: Scene, n: int):
+    """Jitted ``advance(state, params, k) -> state``: ``k`` steps (an int32; one program for any
+    ``k``: ``make_steps``) of particles [0, n) of the buffer, carrying particles [n, N) as
+    ``make_prefix_advance`` does.  The driver's frame is a few such calls (``run_chunked``), and
+    gives ``make_prefix_advance``'s frame bit for bit."""
+    steps = make_steps(scene)
+    if n >= scene.n_particles:
+        return jax.jit(steps)
+
+    def advance(state, params, k):
+        head, tail = _split(state, n)
+        new = steps(head, params, k)
+        tail = tail._replace(v=jnp.zeros_like(tail.v), C=jnp.zeros_like(tail.C), tau=jnp.zeros_like(tail.tau))
+        N = state.x.shape[0]
+
+        def join(a, b, c):
+            return jnp.concatenate([a, b]) if c.ndim and c.shape[0] == N else a
+
+        return jax.tree_util.tree_map(join, new, tail, state)
+
+    return jax.jit(advance)
+
+
+def make_frame_program(scene: Scene, n: int):
+    """The driver's program for the buffer prefix [0, n): ``make_prefix_steps`` (called with the
+    steps of a chunk) where the scene is ``chunkable``, else ``make_prefix_advance`` (a whole frame)."""
+    return make_prefix_steps(scene, n) if chunkable(scene) else make_prefix_advance(scene, n)
+
+
+def frame_program_args(scene: Scene, state: State, params: Params) -> tuple:
+    """Example arguments to lower ``make_frame_program``'s program with."""
+    return (state, params, np.int32(1)) if chunkable(scene) else (state, params)
+
+
 class StagedAdvance:
     """Frame-by-frame driver: ``advance(i, state, params) -> state`` advances frame ``i`` (0-based)
     on the prefix ``capacity_schedule(scene)[i]`` of the buffer (the whole buffer when
     ``staged`` is False or the scene has no inflow).
 
-    ``compile(n)`` returns the advance for prefix size n (default: ``make_prefix_advance``;
-    the command line passes a cached, ahead-of-time compiled one).  Before a frame the
+    ``compile(n)`` returns the program for prefix size n (default: ``make_frame_program``; the
+    command line passes a cached, ahead-of-time compiled one).  Where the scene is ``chunkable``
+    the program takes a number of steps and a frame is stepped in chunks of about ``CHUNK_S``
+    seconds (``run_chunked``, ``pacer``), with ``between()`` after each (default: raise
+    ``Interrupted`` for a signal noted in ``_received``), so that a signal is acted on within
+    seconds however long a frame is; the frame is the same bit for bit.  Before a frame the
     particles beyond the prefix must all be inactive, and after it the first of them must
     still be due later than the state's time; otherwise (a state not from this schedule,
     or time drift beyond the slack) the frame is run on the whole buffer instead (always
     correct) and counted in ``fallbacks``.
     """
 
-    def __init__(self, scene: Scene, staged: bool = True, compile=None, min_size: int | None = None):
+    def __init__(
+        self, scene: Scene, staged: bool = True, compile=None, min_size: int | None = None, pacer=None, between=check
+    ):
         self.scene = scene
         N = scene.n_particles
         m = MIN_STAGE if min_size is None else min_size
         self.schedule = capacity_schedule(scene, min_size=m) if staged else (N,) * scene.n_frames
-        self._compile = compile or (lambda n: make_prefix_advance(scene, n))
+        self._compile = compile or (lambda n: make_frame_program(scene, n))
         self._programs: dict = {}
         self.fallbacks = 0
+        self.chunked = chunkable(scene)
+        self.pacer = pacer or Pacer()
+        self.between = between
 
     def sizes(self, first_frame: int = 0) -> list[int]:
         """The prefix sizes that frames ``first_frame``.. use, ascending."""
@@ -269,10 +386,16 @@ class StagedAdvance:
         n = self.schedule[i] if i < len(self.schedule) else N
         if n < N and bool(jnp.any(state.active[n:])):
             n = N
-        new = self.program(n)(state, params)
+        new = self._frame(self.program(n), state, params)
         if n < N:
             k = (n - sc.inflow.first) // sc.inflow.n_per_layer
             if not layer_time(sc, k) >= float(new.t) + 0.5 * sc.dt:
                 self.fallbacks += 1
-                new = self.program(N)(state, params)
+                new = self._frame(self.program(N), state, params)
         return new
+
+    def _frame(self, program, state: State, params: Params) -> State:
+        if not self.chunked:
+            return program(state, params)
+        spf = self.scene.steps_per_frame
+        return run_chunked(lambda s, k: program(s, params, k), state, spf, self.pacer, self.between)

@@ -114,6 +114,21 @@ def _checkpoint(damage):
     return setup
 
 
+def _kept_cases(rel):
+    """OUT/sweep-partial.npz holding one finished case of another sweep (n = 1.5)."""
+
+    def setup(tmp):
+        code = (
+            "import numpy as np; from pathlib import Path; import mpmjax; from calibration.sweep import _identity, "
+            f"_write_kept; cfg = mpmjax.load_scene({TWIN!r}, {SMALL!r}); "
+            f"_write_kept(Path({str(Path(tmp) / rel)!r}) / 'sweep-partial.npz', _identity(cfg, {{'n': [1.5]}}, None, "
+            "None), {0: (np.zeros(4), np.zeros(4), np.zeros(4), 0, np.zeros(101))})"
+        )
+        subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=_env(), check=True, capture_output=True)
+
+    return setup
+
+
 def _hold_lock(rel):
     """A process holding the lock of folder ``rel`` (as a running command does); killed after the case."""
 
@@ -229,6 +244,9 @@ def sweep_cases():
       env={"MPMJAX_MEMORY_LIMIT_GB": "0.2"})
     c("--set n_frames with 10000 digits", ["--set", "time.n_frames=" + "9" * 10000, "--out", "{tmp}/o"],
       ("time.n_frames",))
+    c("--resume with no unfinished sweep", ["--resume", "--out", "{tmp}/o"], ("--resume",), _mkdir("o"))
+    c("--out holds another sweep's finished cases", ["--out", "{tmp}/o"], ("--out", "sweep-partial.npz", "--vary"),
+      _kept_cases("o"))
     cases.append(Case("sweep-merge: a damaged part", "sweep", ["sweep-merge", "{tmp}/parts", "--quiet"],
                       names=("part-0-of-1.npz",), setup=_write("parts/part-0-of-1.npz", b"PK\x03\x04garbage", "wb")))
     cases.append(Case("sweep-merge: parts folder is a file", "sweep", ["sweep-merge", "{tmp}/afile", "--quiet"],
@@ -260,7 +278,32 @@ def run_cases():
       argv=["run", "--resume", "{tmp}/r", "--quiet", "--no-animation"])
     c("--resume: metadata without its keys", [], ("checkpoint",), _checkpoint("nokey"),
       argv=["run", "--resume", "{tmp}/r", "--quiet", "--no-animation"])
+    c("a body wholly below the DEM surface", [], ("bodies[0]", "below the terrain surface"),
+      _write("buried.toml", BURIED), argv=["run", "{tmp}/buried.toml", "--quiet", "--no-animation", "--out", "{tmp}/o"])
     return cases
+
+
+BURIED = """name = "buried"
+[domain]
+lo_m = [0.0, 0.0]
+hi_m = [1.6, 0.4]
+cell_size_m = 0.04
+[time]
+t_end_s = 0.05
+n_frames = 1
+[material]
+model = "newtonian"
+density_kg_m3 = 1000.0
+bulk_modulus_pa = 1e5
+viscosity_pa_s = 1.0
+[terrain]
+type = "slip"
+heights_m = [0.1, 0.2, 0.3]
+spacing_m = 0.8
+[[bodies]]
+lo_m = [0.2, 0.0]
+hi_m = [0.4, 0.1]
+"""
 
 
 def other_cases():
@@ -303,8 +346,18 @@ def signal_cases():
                           names=("interrupted",), signal_at=("scene ", 1.0 + 0.7 * i, signal.SIGINT)))
     cases.append(Case("run: SIGTERM while compiling", "signals", run, expect=143, names=("interrupted",),
                       signal_at=("scene ", 1.5, signal.SIGTERM)))
-    cases.append(Case("run: SIGINT inside a long frame", "signals", long_frame, expect=130, names=("interrupted",),
-                      signal_at=("compiled", 3.0, signal.SIGINT), stop_within_s=15, timeout_s=300))
+    # a frame is stepped in chunks of about a second: its own handler stops it, before the watchdog's 5 s
+    cases.append(Case("run: SIGINT inside a long frame", "signals", long_frame, expect=130,
+                      names=("interrupted at frame 0/1",), signal_at=("compiled", 3.0, signal.SIGINT),
+                      stop_within_s=4.5, timeout_s=300))
+    small = run + [*RUN_SETS]
+    for delay in (0.3, 0.6, 0.9, 1.2):  # while the program imports: jax's gc callback used to drop it (exit 0)
+        cases.append(Case(f"run: SIGINT {delay:g} s after the start", "signals", small, expect=130,
+                          names=("interrupted",), signal_at=("", delay, signal.SIGINT)))
+    pics = ["run", "dambreak-lab", "--out", "{tmp}/o", "--set", "domain.cell_size_m=0.04", "--set", "time.t_end_s=0.2",
+            "--set", "time.n_frames=10"]
+    cases.append(Case("run: SIGTERM while animation.gif is written", "signals", pics, expect=143,
+                      names=("animation.gif is missing",), signal_at=("animation [", 0.0, signal.SIGTERM)))
     cal = ["calibrate", "{tmp}/p.csv", "--scene", TWIN, "--fit", "mu0,T", "--levels", "1", "--max-iter", "50",
            "--rtol", "1e-12", "--out", "{tmp}/o", "--set", "domain.cell_size_m=0.03", "--set", "time.t_end_s=0.3",
            "--set", "time.n_frames=3"]
@@ -318,6 +371,12 @@ def signal_cases():
           "--set", "time.t_end_s=20", "--set", "domain.cell_size_m=0.01"]
     cases.append(Case("sweep: SIGINT inside a batch", "signals", sw, expect=130, names=("interrupted",),
                       signal_at=("", 15.0, signal.SIGINT), stop_within_s=15, timeout_s=300))
+    # steps in chunks of about a second: stopped within seconds, the finished case kept
+    sw2 = ["sweep", TWIN, "--vary", "n=2,3", "--chunk", "1", "--out", "{tmp}/o", "--set", "domain.cell_size_m=0.03",
+           "--set", "time.t_end_s=120", "--set", "time.n_frames=2"]
+    cases.append(Case("sweep: SIGTERM in the second batch keeps the first", "signals", sw2, expect=143,
+                      names=("1 of 2 cases finished and are kept in",), signal_at=("batch 1/2", 0.5, signal.SIGTERM),
+                      stop_within_s=4.5, timeout_s=300))
     return cases
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import tomllib
 from pathlib import Path
 
 import h5py
@@ -16,6 +17,7 @@ import pytest
 
 import mpmjax
 from mpmjax import cli
+from mpmjax._build import start_warnings
 
 SMALL = ["domain.cell_size_m=0.04", "time.t_end_s=0.3", "time.n_frames=3"]
 SETS = [a for s in SMALL for a in ("--set", s)]
@@ -100,3 +102,54 @@ def test_a_damaged_checkpoint_is_refused_naming_it(capsys, tmp_path, checkpoint,
     before = _damage(checkpoint, out, how)
     _refused(capsys, ["run", "--resume", str(out), "--quiet", "--no-animation"], "checkpoint", *words)
     assert (out / "checkpoint.h5").read_bytes() == before  # left as it was
+
+
+# --- a body below the DEM surface (issue 35's terrain row) -------------------------------------------
+_TERRAIN_SCENE = """
+name = "buried"
+[domain]
+lo_m = [0.0, 0.0]
+hi_m = [1.6, 0.4]
+cell_size_m = 0.04
+[time]
+t_end_s = 0.05
+n_frames = 1
+[material]
+model = "newtonian"
+density_kg_m3 = 1000.0
+bulk_modulus_pa = 1e5
+viscosity_pa_s = 1.0
+[terrain]
+type = "slip"
+heights_m = [0.1, 0.2, 0.3]
+spacing_m = 0.8
+[[bodies]]
+lo_m = [0.2, 0.0]
+hi_m = [0.4, {top}]
+"""
+
+
+def test_a_body_wholly_below_the_terrain_is_refused_naming_it_and_the_surface(tmp_path, capsys):
+    scene = tmp_path / "buried.toml"
+    scene.write_text(_TERRAIN_SCENE.format(top=0.1))
+    assert cli.main(["run", str(scene), "--quiet", "--no-animation", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert err == (
+        "mpmjax: error: bodies[0] (box, from [0.2, 0.0] to [0.4, 0.1] m) lies wholly below the terrain surface: its "
+        "highest particle is at y = 0.09375 m, where the surface under the body is at y = 0.1258 to 0.1492 m "
+        "(terrain.*); allowed: a body above the surface: raise bodies[0] to rest on it, or lower the terrain"
+    ), err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_body_partly_below_the_terrain_runs_with_a_warning_giving_the_share_lifted():
+    def warnings(text):
+        return [w for w in start_warnings(mpmjax.build(mpmjax.validate(tomllib.loads(text)))) if "terrain" in w]
+
+    (w,) = warnings(_TERRAIN_SCENE.format(top=0.3))
+    assert w.startswith(
+        "bodies[0] (box, from [0.2, 0.0] to [0.4, 0.3] m) starts 45.8 % below the terrain surface (151 of 330 "
+        "particles, down to 0.142 m under it): they are lifted onto the surface at the first step"
+    ), w
+    assert not warnings(_TERRAIN_SCENE.format(top=0.3).replace("[0.2, 0.0]", "[0.2, 0.15]"))

@@ -176,7 +176,7 @@ def test_a_short_prefix_falls_back_to_the_whole_buffer(pour, runs):
     adv.schedule = (35,) * sc.n_frames  # frames 3.. release more than 35 particles
     a = b = st0
     for i in range(5):
-        a, b = full(a, p), adv(i, b, p)
+        a, b = full(a, p, np.int32(sc.steps_per_frame)), adv(i, b, p)  # one chunk of a whole frame
     for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     assert int(np.asarray(b.active).sum()) > 35 and adv.fallbacks >= 1

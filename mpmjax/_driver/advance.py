@@ -7,14 +7,15 @@ from __future__ import annotations
 import jax
 
 from .. import _hazard
-from .._simulate import StagedAdvance, make_prefix_advance
+from .._simulate import StagedAdvance, frame_program_args, make_frame_program
 
 _ADVANCE_CACHE: dict = {}
 
 
 def _compiled_advance(sc, state, params, n=None):
-    """The compiled one-frame advance for this scene, these array shapes and the buffer prefix
-    [0, n) it steps (default: all; see ``_simulate.make_prefix_advance``), kept for the
+    """The compiled frame program for this scene, these array shapes and the buffer prefix
+    [0, n) it steps (default: all; ``_simulate.make_frame_program``: a chunk of any number of
+    steps, or on slabs a whole frame), kept for the
     process (a few scenes' worth), so repeated runs of one scene (a resume, tests, notebooks)
     compile once and run the very same programs."""
     n = sc.n_particles if n is None else int(n)
@@ -23,7 +24,7 @@ def _compiled_advance(sc, state, params, n=None):
     if key not in _ADVANCE_CACHE:
         if len(_ADVANCE_CACHE) >= 24:
             _ADVANCE_CACHE.pop(next(iter(_ADVANCE_CACHE)))
-        _ADVANCE_CACHE[key] = make_prefix_advance(sc, n).lower(state, params).compile()
+        _ADVANCE_CACHE[key] = make_frame_program(sc, n).lower(*frame_program_args(sc, state, params)).compile()
     return _ADVANCE_CACHE[key]
 
 

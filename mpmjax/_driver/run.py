@@ -11,6 +11,7 @@ from pathlib import Path
 
 from .._build import build, start_warnings
 from .._io import config_hash
+from .._received import scope
 from .._schema import load_scene
 from .._shard import use_devices
 from .advance import compile_advance, make_advance
@@ -28,7 +29,7 @@ from .resume import (
     restore,
     resume_command,
 )
-from .signals import Interrupted, Signals
+from .signals import Interrupted, Signals, check
 from .status import OutputFailure, os_reason
 from .summary import base_summary, status_summary, write_summary_anyway
 
@@ -72,7 +73,8 @@ def run_scene(
     """
     lock = OutputLock(Path(out))
     try:
-        return _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock)
+        with scope():  # a signal noted in this run does not stop the next one in this process
+            return _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock)
     finally:
         lock.release()
 
@@ -80,32 +82,16 @@ def run_scene(
 def _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame, animate, staged, lock) -> dict:
     """``run_scene`` with the folder's ``lock`` (released by the caller)."""
     out = Path(out)
-    ckpt = None
-    check_output_folder(out)  # an existing file, an uncreatable or unwritable folder: exit 2, before building
-    if resume:
-        ckpt = read_for_resume(out, lock)
-        meta = ckpt[3]
-        if scene is None:
-            scene, overrides = meta["scene_source"], meta["overrides"]
-        overrides = overrides or []
-    if scene is None:
-        scene = "dambreak-lab"
-    overrides = list(overrides or [])
-    source = str(Path(scene).resolve()) if Path(scene).is_file() else str(scene)
-    cfg = load_scene(scene, overrides)
-    chash = config_hash(cfg)
-    if ckpt is not None:
-        check_same_scene(out, ckpt, cfg, chash, source, overrides)
-    use_devices(cfg["numerics.devices"])  # first: on a CPU, host devices can be made only before JAX starts
-    check_memory(cfg)  # before anything is built: a run that cannot fit is refused (exit 2)
-    setup = build(cfg)
-    if ckpt is not None:
-        check_checkpoint(out, ckpt, setup)  # its frame and array shapes, before the state is used
-    make_output_folder(out)
-    lock.acquire()  # before anything in the folder is created or truncated
+    try:
+        ckpt, scene, overrides, source, cfg, chash, setup = _load(scene, out, overrides, resume, lock)
+    except KeyboardInterrupt as e:
+        # before the driver's own handler (the scene loaded and built, nothing written): say so
+        note = f"interrupted before the run started: nothing in {out} was written or changed"
+        raise Interrupted(getattr(e, "signum", signal.SIGINT), note) from None
     log = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
     sig = Signals()  # from here Ctrl-C / SIGTERM raise Interrupted (while compiling: once the compiler returns)
     try:
+        check()  # one dropped between the check above and the handler
         run = _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint_every, log)
     except KeyboardInterrupt as e:
         sig.restore()
@@ -129,6 +115,38 @@ def _run_scene(scene, out, overrides, quiet, checkpoint_every, resume, on_frame,
         raise OutputFailure(f"{reason}; summary.json {said}") from None
 
 
+def _load(scene, out: Path, overrides, resume: bool, lock) -> tuple:
+    """Vet the folder, read a resumed run's checkpoint, load, check and build the scene, then create
+    and lock the folder: ``(checkpoint, scene, overrides, source, cfg, config hash, setup)``."""
+    ckpt = None
+    check_output_folder(out)  # an existing file, an uncreatable or unwritable folder: exit 2, before building
+    if resume:
+        ckpt = read_for_resume(out, lock)
+        meta = ckpt[3]
+        if scene is None:
+            scene, overrides = meta["scene_source"], meta["overrides"]
+        overrides = overrides or []
+    if scene is None:
+        scene = "dambreak-lab"
+    overrides = list(overrides or [])
+    source = str(Path(scene).resolve()) if Path(scene).is_file() else str(scene)
+    cfg = load_scene(scene, overrides)
+    chash = config_hash(cfg)
+    if ckpt is not None:
+        check_same_scene(out, ckpt, cfg, chash, source, overrides)
+    use_devices(cfg["numerics.devices"])  # first: on a CPU, host devices can be made only before JAX starts
+    check_memory(cfg)  # before anything is built: a run that cannot fit is refused (exit 2)
+    setup = build(cfg)
+    if ckpt is not None:
+        check_checkpoint(out, ckpt, setup)  # its frame and array shapes, before the state is used
+    # a signal whose exception was dropped while the scene was built (a jax gc callback drops it:
+    # mpmjax._received): stop before the folder is touched
+    check(f"interrupted before the run started: nothing in {out} was written or changed")
+    make_output_folder(out)
+    lock.acquire()  # before anything in the folder is created or truncated
+    return ckpt, scene, overrides, source, cfg, chash, setup
+
+
 def _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint_every, log) -> Run:
     """Log the scene and its warnings, compile the frame advance, and set up the run from frame 0
     or from the checkpoint ``ckpt``."""
@@ -149,7 +167,7 @@ def _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint
     compile_s = time.perf_counter() - t0
     staged_note = (
         f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
-        if sizes != [sc.n_particles]
+        if sizes and sizes != [sc.n_particles]  # none: resumed at the last frame, to write the outputs
         else ""
     )
     log(f"compiled in {compile_s:.1f} s{staged_note}")

@@ -7,13 +7,9 @@ import contextlib
 import signal
 import threading
 
+from .._received import Interrupted, check, note
 
-class Interrupted(KeyboardInterrupt):
-    """A run stopped by SIGINT (Ctrl-C) or SIGTERM; ``message`` says how to resume it."""
-
-    def __init__(self, signum: int, message: str = ""):
-        super().__init__(message)
-        self.signum, self.message = signum, message
+__all__ = ["Interrupted", "Signals", "check", "held"]
 
 
 _ACTIVE: list = []  # the Signals installed now (a run's), for ``held``
@@ -40,6 +36,7 @@ class Signals:
                 self.old[s] = signal.signal(s, self._handler)
 
     def _handler(self, signum, frame):
+        note(signum)  # also where the exception below is dropped (a gc callback): mpmjax._received
         if self.depth:
             self.pending = signum
         else:
@@ -56,6 +53,8 @@ class Signals:
             if not self.depth and self.pending is not None:
                 signum, self.pending = self.pending, None
                 raise Interrupted(signum)
+            if not self.depth:
+                check()  # a signal whose exception was dropped
 
         return cm()
 

@@ -34,6 +34,7 @@ import sys
 import threading
 from pathlib import Path
 
+from .. import _received
 from .._driver import Interrupted, OutputError, OutputLock, check_output_folder
 from .._driver.folder import make_output_folder
 from .._driver.signals import held
@@ -157,14 +158,14 @@ def guarded_output(command, args):
                     folder.rmdir()  # only if empty: the command wrote nothing
 
 
-RECEIVED: list = []  # the signals ``interrupt_signals`` has seen in this command
+_LAST: list = [None]  # the signal noted in the command that ran last (kept past its scope)
 
 
 def interrupted_by() -> int | None:
     """The signal that interrupted the command, if one did.  An ``Interrupted`` raised inside a
     ``jax.pure_callback`` (the calibration's model evaluations) reaches the command as the
     callback's ``XlaRuntimeError``; ``_status.run_command`` maps it back through this."""
-    return RECEIVED[0] if RECEIVED else None
+    return _received.received() or _LAST[0]
 
 
 class _QuietAfterSignal(logging.Filter):
@@ -172,33 +173,38 @@ class _QuietAfterSignal(logging.Filter):
     reports is the command's, which prints its own line)."""
 
     def filter(self, record):
-        return not RECEIVED
+        return _received.received() is None
 
 
 @contextlib.contextmanager
-def interrupt_signals():
+def interrupt_signals(name: str = "the command"):
     """SIGINT and SIGTERM raise ``Interrupted`` (``_status`` maps it to 128 + the signal) while the
     command runs; the previous handlers afterwards.  Only in the main thread (Python delivers
-    signals there only)."""
-    RECEIVED.clear()
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    signals there only).  Each signal is noted first (``mpmjax._received``: a handler's exception
+    can be dropped, and the loops check the note); one noted while the program started (its
+    imports) stops the command here, before anything is written."""
+    _LAST[0] = None
+    with _received.scope():
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
 
-    def handler(signum, frame):
-        RECEIVED.append(signum)
-        raise Interrupted(signum)
+        def handler(signum, frame):
+            _received.note(signum)
+            raise Interrupted(signum)
 
-    quiet = _QuietAfterSignal()
-    logging.getLogger("jax._src.callback").addFilter(quiet)
+        quiet = _QuietAfterSignal()
+        logging.getLogger("jax._src.callback").addFilter(quiet)
 
-    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        logging.getLogger("jax._src.callback").removeFilter(quiet)
+        old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            _received.check(f"interrupted before {name} started: nothing was written")
+            yield
+        finally:
+            _LAST[0] = _received.received()  # the scope clears the note on its way out
+            for s, h in old.items():
+                signal.signal(s, h)
+            logging.getLogger("jax._src.callback").removeFilter(quiet)
 
 
 GRACE_S = 5.0  # the time the main thread has to act on a signal before the watchdog ends the process

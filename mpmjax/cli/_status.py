@@ -20,6 +20,7 @@ from argparse import Namespace
 from calibration.data import DataError
 from calibration.distributed import DistributedError
 
+from .. import _received
 from .._driver import Interrupted, OutputFailure
 from .._health import RunFailure
 from .._schema import SceneError
@@ -74,10 +75,14 @@ def run_command(command, args: Namespace, program: bool = False) -> int:
     # the watchdog's line is formatted when it fires: a handler may set args.out (run: runs/SCENE)
     watchdog = _guard.Watchdog(lambda: command.interrupted.format(**vars(args))) if program else None
     try:
-        with _guard.interrupt_signals():
+        with _guard.interrupt_signals(f"mpmjax {command.name}"):
             _guard.check_options(args)
             with _guard.guarded_output(command, args):
-                return command.handler(args)
+                status = command.handler(args)
+            # a signal whose exception was dropped (mpmjax._received) after the handler's last check:
+            # the command did its work, but it was asked to stop, and says so
+            _received.check(f"interrupted at the end of mpmjax {command.name}: its outputs were written in full")
+            return status
     except (Exception, KeyboardInterrupt) as e:
         signum = _guard.interrupted_by()
         if signum is not None and not isinstance(e, KeyboardInterrupt):

@@ -23,6 +23,12 @@ def add_sweep_arguments(p) -> None:
     number(p, "--chunk", type=int, lo=1, help="cases per vmap batch (default: as many as fit in a quarter of memory)")
     p.add_argument("--out", default="sweep-out", help="output folder (default sweep-out)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the interrupted sweep in --out: run only the cases not finished (kept in "
+        "OUT/sweep-partial.npz); the same command without --resume also continues it",
+    )
     number(
         p,
         "--devices",
@@ -61,6 +67,7 @@ def cmd_sweep(args) -> int:
         num_processes=args.num_processes,
         process_id=args.process_id,
         distributed=args.distributed,
+        resume=args.resume,
     )
     return 0
 
