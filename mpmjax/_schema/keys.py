@@ -268,7 +268,7 @@ _TAIL: dict[str, Key] = {
         "table-list",
         [],
         "-",
-        "Material bodies: a list of tables ([[bodies]]), each with a type (box, cylinder, cone, polygon) and the "
+        "Material bodies: a list of tables ([[bodies]]), each with a type (box, cylinder, cone, polygon, mesh) and the "
         "keys of its type, listed below as bodies[].KEY. At least one body, an inflow or a release is required. "
         "Shaped bodies are seeded on the domain's particle lattice, each particle inside the shape holding the "
         "lattice volume (h / ppc)^dim; a shaped body may extend past a symmetry face of the domain only if its "
@@ -418,15 +418,16 @@ _TAIL: dict[str, Key] = {
 
 
 # The keys of one [[bodies]] table (shown as bodies[].KEY in docs/scenes.md); which type takes
-# which key: BODY_TYPES.  Cross-key rules (top radius <= radius, a simple polygon, inside the
-# domain) are checked in validate._validate_bodies.
+# which key: BODY_TYPES.  Cross-key rules (top radius <= radius, a simple polygon, a closed mesh,
+# inside the domain) are checked in validate._validate_bodies.
 BODY_KEYS: dict[str, Key] = {
     "type": Key(
         str,
         "box",
         "-",
-        "Body shape: box (any dim), cylinder and cone (3D, axis-aligned), polygon (2D).",
-        choices=("box", "cylinder", "cone", "polygon"),
+        "Body shape: box (any dim), cylinder and cone (3D, axis-aligned), polygon (2D), mesh (3D, a closed "
+        "triangle mesh from an STL or OBJ file).",
+        choices=("box", "cylinder", "cone", "polygon", "mesh"),
     ),
     "lo_m": Key("vec", _REQ, "m", "box: lower corner."),
     "hi_m": Key("vec", _REQ, "m", "box: upper corner (> lo_m on every axis)."),
@@ -447,6 +448,21 @@ BODY_KEYS: dict[str, Key] = {
         "m",
         "polygon: vertices [[x, y], ...] in order (either orientation), at least 3, not self-intersecting.",
     ),
+    "file": Key(
+        str,
+        _REQ,
+        "-",
+        "mesh: STL or OBJ file, relative to the scene file; a closed (watertight) triangle surface, read with trimesh.",
+    ),
+    "scale": Key(
+        float,
+        1.0,
+        "-",
+        "mesh: factor from the file's coordinates to metres (0.001 for a file in mm); applied before offset_m.",
+        lo=0.0,
+        lo_open=True,
+    ),
+    "offset_m": Key("vec", None, "m", "mesh: added to the scaled coordinates; default 0."),
     "velocity_m_s": Key("vec", None, "m/s", "Initial velocity of the body; default 0."),
 }
 
@@ -456,4 +472,5 @@ BODY_TYPES: dict[str, tuple[tuple[int, ...], tuple[str, ...]]] = {
     "cylinder": ((3,), ("base_m", "radius_m", "height_m", "axis")),
     "cone": ((3,), ("base_m", "radius_m", "top_radius_m", "height_m", "axis")),
     "polygon": ((2,), ("vertices_m",)),
+    "mesh": ((3,), ("file", "scale", "offset_m")),
 }

@@ -77,6 +77,10 @@ def load_scene(name_or_path: str | Path, overrides: list[str] | dict | None = No
             if "\x00" in ter[k]:
                 raise SceneError(f"terrain.{k} = {ter[k]!r}: a file path cannot contain a NUL character")
             ter[k] = str((path.parent / ter[k]).resolve()) if not Path(ter[k]).is_absolute() else ter[k]
+    bodies = raw.get("bodies")
+    for b in bodies if isinstance(bodies, list) else []:  # mesh files, like the terrain's
+        if isinstance(b, dict) and isinstance(b.get("file"), str) and b["file"] and "\x00" not in b["file"]:
+            b["file"] = str((path.parent / b["file"]).resolve()) if not Path(b["file"]).is_absolute() else b["file"]
     return validate(raw)
 
 

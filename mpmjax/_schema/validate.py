@@ -490,6 +490,9 @@ def _validate_bodies(out: dict, dim: int, lo, hi, h):
                 )
         if "axis" in keys:
             body["axis"] = dim - 1 if body.get("axis") is None else body["axis"]
+        if btype == "mesh":
+            body.setdefault("scale", BODY_KEYS["scale"].default)
+            body["offset_m"] = body.get("offset_m") or [0.0] * dim
         _check_shape(body, i, dim, lo, hi, h, faces)
         n_particles += _bodies.lattice_count_bound(out, body)
         bodies.append(body)
@@ -503,8 +506,8 @@ def _validate_bodies(out: dict, dim: int, lo, hi, h):
 
 def _check_shape(body: dict, i: int, dim: int, lo, hi, h, faces):
     """Cross-key checks of a shaped body: a cone's top radius at most its base radius, a simple
-    polygon of non-zero area, and the body inside the domain except across a symmetry face that
-    its axis lies on (a half or quarter model)."""
+    polygon of non-zero area, a mesh file that holds a closed triangle mesh, and the body inside the
+    domain except across a symmetry face that its axis lies on (a half or quarter model)."""
     btype = body["type"]
     if btype == "cone" and body["top_radius_m"] > body["radius_m"]:
         raise SceneError(
@@ -525,6 +528,14 @@ def _check_shape(body: dict, i: int, dim: int, lo, hi, h, faces):
             raise SceneError(
                 f"bodies[{i}].vertices_m = {_show(body['vertices_m'])} is invalid: the polygon has no area"
             )
+    if btype == "mesh":
+        try:
+            _bodies.load_mesh(body)
+        except _bodies.MeshError as e:
+            raise SceneError(
+                f"bodies[{i}].file = {_show(body['file'], 400)} is invalid: the file {e} (allowed: an STL or OBJ file "
+                "holding a closed triangle mesh; relative paths are relative to the scene file)"
+            ) from None
     blo, bhi = _bodies.bounds(body, dim)
     tol = 1e-6 * h
     for a in range(dim):
