@@ -25,6 +25,9 @@ measured figures):
 * a twin back-analysis of the yield stress from a dam break's outline (5 %, the issue's target; measured
   -2.6 %: the fit resolution's bias);
 * an inertia-free Bingham slump comes to rest at the lubrication static front (5 %; measured -0.34 %).
+* a fast (inertial) Bingham slump stays at rest after arrest where its tip columns stay within a cell
+  of each other (under 1e-6 m/s; measured 4e-8 m/s at 4 s), and a strict xfail for the same slump
+  with an under-resolved tip, which creeps (docs/depth-averaged.md, "Creep after arrest").
 """
 
 from __future__ import annotations
@@ -291,3 +294,50 @@ def test_twin_back_analysis_recovers_the_yield_stress():
     r = fit([exp], ps, method="lm", max_iter=10, progress=False)
     assert r.params["tau_y"] == pytest.approx(20.0, rel=0.05), r.params
     assert r.loss_final < 1e-3 * r.loss_initial
+
+
+# ------------------------------------------------------------------ a fast Bingham slump after arrest
+
+
+def _fast_slump(tau_y, ppc):
+    """The twin's dam break (0.3 m x 0.1 m against a slip wall, mu = 0.5 Pa s: inertial, arrests
+    within about 2 s) at h = 5 mm, frames at 1, 2, 3, 4 s."""
+    from mpmjax._observables import free_surface_front
+
+    mat = {"model": "bingham", "viscosity_pa_s": 0.5, "yield_stress_pa": tau_y}
+    s, fin, frames = _final(_scene(mat, ([0.0, 0.0], [0.3, 0.1]), 4.0, h=0.005, ppc=ppc, length=1.2, n_frames=4))
+    fronts = [
+        float(free_surface_front(frames.x[i], fin.vol0, frames.active[i], bandwidth=0.01, x_lo=0.0, x_hi=1.2))
+        for i in range(4)
+    ]
+    xs = np.sort(np.asarray(fin.x[:, 0]))
+    tip_spacing = float(np.diff(xs[-10:]).mean()) / s.scene.h  # the last ten columns' spacing [cells]
+    return fin, fronts, tip_spacing
+
+
+def test_fast_bingham_slump_stays_at_rest_after_arrest_where_its_tip_is_resolved():
+    """After arrest the capped yield friction holds the deposit exactly (docs/depth-averaged.md,
+    "Creep after arrest").  tau_y = 40 Pa at 8 columns a cell: the front stops at 0.744 m by 3 s
+    with the last columns 0.95 cells apart (depth >= V_p / h everywhere: the grid's depth of the tip
+    is smooth), and the largest speed then decays geometrically (6e-6 m/s at 3 s, 4e-8 at 4 s).
+    Bounds: 1e-6 m/s at 4 s (the lubrication test's 'at rest'; the creep this guards against runs at
+    5e-2 m/s, and the yield cap removes dt tau_y / (rho H) ~ 1e-3 m/s of speed a step, so a node
+    still above 1e-6 m/s is driven past yield), and the headline front moving less than 0.1 mm
+    between 3 s and 4 s (the creep moved it 5 mm)."""
+    fin, fronts, tip = _fast_slump(40.0, 8)
+    assert tip < 1.0
+    assert float(jnp.abs(fin.v).max()) < 1e-6
+    assert abs(fronts[3] - fronts[2]) < 1e-4
+    assert 0.7 < fronts[3] < 0.8
+
+
+@pytest.mark.xfail(strict=True, reason="an under-resolved tip creeps after arrest (docs/depth-averaged.md, 'Creep after arrest')")
+def test_fast_bingham_slump_with_an_under_resolved_tip_stays_at_rest():
+    """The same slump at 4 columns a cell: its tip columns spread to 1.9-2 cells apart (thinner than
+    V_p / h = 25 mm), the grid's depth there alternates from node to node, and the pressure of those
+    bumps (on the 20 Pa twin slump: 20-30 % depth jumps, 9-15 times the yield friction a node can
+    hold, sign alternating) keeps the tip creeping at 5-9 cm/s: front 0.774 m at 3 s, 0.780 m at 4 s.  Passes once the tip is resolved
+    (particle splitting at thin fronts, not done)."""
+    fin, fronts, tip = _fast_slump(40.0, 4)
+    assert float(jnp.abs(fin.v).max()) < 1e-6
+    assert abs(fronts[3] - fronts[2]) < 1e-4
