@@ -206,7 +206,7 @@ def _load_mesh(path: str, _stamp: int, scale: float, offset: tuple):
 
 def mesh_contains(mesh, x: np.ndarray) -> np.ndarray:
     """Which of the points x (n, 3) lie inside the closed mesh (trimesh's ray parity, ``_RAY``)."""
-    from trimesh.ray.ray_util import contains_points
+    from trimesh.ray.ray_util import contains_points  # heavy: only when a scene has a mesh body
 
     x = np.asarray(x, float)
     out = np.zeros(len(x), bool)

@@ -15,7 +15,7 @@
   their own, not ``mpmjax`` commands), by no other module of ``mpmjax`` or ``calibration``.
 * ``calibration`` uses only the public ``mpmjax`` API: ``mpmjax`` itself and its public
   submodules (no ``mpmjax._private``).
-* Imports inside functions are only the optional heavy ones (matplotlib), each with a
+* Imports inside functions are only the optional heavy ones (matplotlib, trimesh), each with a
   comment on its line or the line before saying why.
 * No upward import between the library's layers (issue 34): the core (scenes, the step, I/O,
   metrics) imports neither the plots, the rheometer nor the run driver; the plots and the
@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("mpmjax", "calibration")
 # imports allowed inside a function body: optional heavy modules loaded only when used
-LAZY_OK = ("matplotlib",)
+LAZY_OK = ("matplotlib", "trimesh")
 
 
 def _modules() -> dict[str, Path]:
