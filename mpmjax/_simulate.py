@@ -282,6 +282,25 @@ def _split(state: State, n: int):
     return cut(0, n), cut(n, N)
 
 
+def _on_prefix(fn, n: int):
+    """``fn(state, params, *args)`` applied to particles [0, n) of the buffer; particles [n, N) are
+    carried as the step carries an inactive one (position, J, viscosity, internal fields and gate
+    kept; velocity, affine matrix and stress zero)."""
+
+    def advance(state, params, *args):
+        head, tail = _split(state, n)
+        new = fn(head, params, *args)
+        tail = tail._replace(v=jnp.zeros_like(tail.v), C=jnp.zeros_like(tail.C), tau=jnp.zeros_like(tail.tau))
+        N = state.x.shape[0]
+
+        def join(a, b, c):
+            return jnp.concatenate([a, b]) if c.ndim and c.shape[0] == N else a
+
+        return jax.tree_util.tree_map(join, new, tail, state)
+
+    return advance
+
+
 def make_prefix_advance(scene: Scene, n: int):
     """Jitted ``advance(state, params) -> state`` over one frame that steps only particles
     [0, n) of the buffer and carries particles [n, N) as the step carries an inactive one
@@ -292,18 +311,7 @@ def make_prefix_advance(scene: Scene, n: int):
     if n >= scene.n_particles:
         return jax.jit(chunk)
 
-    def advance(state, params):
-        head, tail = _split(state, n)
-        new = chunk(head, params)
-        tail = tail._replace(v=jnp.zeros_like(tail.v), C=jnp.zeros_like(tail.C), tau=jnp.zeros_like(tail.tau))
-        N = state.x.shape[0]
-
-        def join(a, b, c):
-            return jnp.concatenate([a, b]) if c.ndim and c.shape[0] == N else a
-
-        return jax.tree_util.tree_map(join, new, tail, state)
-
-    return jax.jit(advance)
+    return jax.jit(_on_prefix(chunk, n))
 
 
 def make_prefix_steps(scene: Scene, n: int):
@@ -315,18 +323,7 @@ def make_prefix_steps(scene: Scene, n: int):
     if n >= scene.n_particles:
         return jax.jit(steps)
 
-    def advance(state, params, k):
-        head, tail = _split(state, n)
-        new = steps(head, params, k)
-        tail = tail._replace(v=jnp.zeros_like(tail.v), C=jnp.zeros_like(tail.C), tau=jnp.zeros_like(tail.tau))
-        N = state.x.shape[0]
-
-        def join(a, b, c):
-            return jnp.concatenate([a, b]) if c.ndim and c.shape[0] == N else a
-
-        return jax.tree_util.tree_map(join, new, tail, state)
-
-    return jax.jit(advance)
+    return jax.jit(_on_prefix(steps, n))
 
 
 def make_frame_program(scene: Scene, n: int):
