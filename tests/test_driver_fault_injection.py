@@ -126,19 +126,36 @@ def test_memory_estimate_covers_the_state_it_builds():
             del os.environ[_driver.MEMORY_ENV]
 
 
+# the child: ``mpmjax run`` whose compile step first receives SIGINT, as from a Ctrl-C in the
+# terminal.  A signal sent from here once the child logs "scene " raced the compiler: on CI's
+# machine the small scene compiled in 0.8 s, before the signal came, and the run was interrupted at
+# frame 0 instead (stop 39).  Sending it from inside the compile step makes the case deterministic.
+_CTRL_C_IN_COMPILE = """
+import os, signal, sys
+from mpmjax._driver import run as driver_run
+real = driver_run.compile_advance
+def compile_advance(*a, **kw):
+    os.kill(os.getpid(), signal.SIGINT)
+    return real(*a, **kw)
+driver_run.compile_advance = compile_advance
+from mpmjax.cli import main
+sys.exit(main())  # as the mpmjax program: it ends the process itself
+"""
+
+
 def test_ctrl_c_while_compiling_exits_130_and_keeps_the_earlier_result(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     (out / "result.h5").write_bytes(SENTINEL)
-    p = subprocess.Popen(_cmd(out), cwd=ROOT, env=_env(), stderr=subprocess.PIPE, text=True)
-    for line in p.stderr:
-        if line.startswith("scene "):  # logged just before compiling
-            p.send_signal(signal.SIGINT)
-            break
-    rest = p.stderr.read()
-    assert p.wait(timeout=600) == 130
-    assert _one_line(rest) == f"interrupted while compiling: no result in {out} was written or changed"
+    cmd = [sys.executable, "-c", _CTRL_C_IN_COMPILE] + _cmd(out)[3:]
+    r = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=600)
+    assert r.returncode == 130, r.stderr
+    lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
+    assert lines[0].startswith("scene ") and "compiled in" not in r.stderr, r.stderr
+    assert _one_line(lines[-1]) == f"interrupted while compiling: no result in {out} was written or changed"
     assert (out / "result.h5").read_bytes() == SENTINEL
+    # nothing else written: only the folder's lock file (the flock the run held, left by design)
+    assert sorted(p.name for p in out.iterdir()) == [_driver.folder.LOCK_NAME, "result.h5"]
 
 
 def _deny(*args, **kw):
