@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _shapes
-from ._scene import Params, Scene, State, box_wall_nodes
+from ._scene import Params, Scene, State, box_wall_nodes, next_time
 
 
 def _wall_masks(scene: Scene):
@@ -128,9 +128,9 @@ def make_release(scene: Scene):
     this step (see ``_scene.Inflow``); the identity without an inflow.
 
     A pool particle is released in the step whose interval [t, t + dt) holds its layer
-    time; the windows of consecutive steps tile the time axis, so each layer is released
-    exactly once (as long as t + dt > t in the state's precision: use float64 for runs
-    whose t / dt exceeds ~1e6).  Released particles start at rest in stress (J = 1,
+    time; the windows of consecutive steps tile the time axis (each ends where the next
+    begins, at ``_scene.next_time``), so each layer is released exactly once (as long as
+    t + dt > t in the state's precision: use float64 for runs whose t / dt exceeds ~1e6).  Released particles start at rest in stress (J = 1,
     tau = 0, C = 0) with the rheology's initial internal state and, with an aging gate,
     have not yet passed it (material in the pipe does not age).
     """
@@ -148,7 +148,7 @@ def make_release(scene: Scene):
         rel = jnp.maximum(rel, 0)
         k, j = rel // n_per, rel % n_per
         t_k = inf.t_start + k.astype(dtp) * inf.layer_dt
-        due = in_pool & ~state.active & (t_k >= state.t) & (t_k < state.t + dt)
+        due = in_pool & ~state.active & (t_k >= state.t) & (t_k < next_time(state.t, dt))
         d = jnp.asarray(inf.direction, dtp)
         back = 0.5 * inf.thickness + inf.speed * (t_k - state.t)
         pos = jnp.asarray(inf.point, dtp)[None, :] + jnp.asarray(inf.offsets, dtp)[j] - back[:, None] * d[None, :]

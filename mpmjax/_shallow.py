@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _basal, _shapes
-from ._scene import Params, Scene, State, box_wall_nodes
+from ._scene import Params, Scene, State, box_wall_nodes, next_time
 
 # nodal mass below this fraction of a full cell's mass (float32 only) counts as empty (as _step)
 EMPTY_NODE_FRACTION = 1e-9
@@ -308,7 +308,7 @@ def make_shallow_step(scene: Scene):
             internal={nm: keep(internal[nm], state.internal[nm]) for nm in internal},
             active=active,
             gate=state.gate,
-            t=state.t + dt,
+            t=next_time(state.t, dt),
             n_lost=state.n_lost + jnp.sum(lost_now).astype(jnp.int32),
             p=state.p,
         )

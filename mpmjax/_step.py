@@ -54,7 +54,7 @@ from ._boundary import (
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._fusion import VELOCITY_GRADIENT, boundary, derivative_boundary, saved
 from ._pressure import make_projection
-from ._scene import Params, Scene, State
+from ._scene import Params, Scene, State, next_time
 from ._shallow import make_shallow_step
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
@@ -309,7 +309,7 @@ def make_step(scene: Scene, axis: str | None = None):
             internal={k: keep(internal[k], state.internal[k]) for k in internal},
             active=active,
             gate=gate,
-            t=state.t + dt,
+            t=next_time(state.t, dt),
             n_lost=state.n_lost + n_lost_now,
             p=None if p_cell is None else p_cell[None],
         )

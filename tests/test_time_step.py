@@ -121,3 +121,38 @@ def test_a_dropped_block_stays_within_the_cfl_limit():
     ke = 0.5 * np.sum(mass * np.where(active, np.sum(v * v, axis=-1), 0.0), axis=1)
     released = G * np.sum(mass * (np.asarray(setup.state.x)[:, 1] - np.asarray(frames.x)[..., 1]), axis=1)
     assert np.all(ke <= released + 0.01 * released.max()), float(np.max(ke - released) / released.max())
+
+
+def test_the_clock_is_the_step_count_times_dt():
+    """Time is (step count) x dt, not a running float32 sum of dt (``_scene.next_time``).
+
+    At dt = 1/540 s, 270 float32 additions of dt reach 0.5 s off by 15 ulp (8.9e-7 s,
+    measured; more than the 1e-6 relative tolerance of the plotting tests), and the drift
+    grows with the step count; the step-count clock lands within one ulp.  A short coarse lab
+    run with that dt must then report frame k at k x 54 x float32(dt) to float32 rounding."""
+    from mpmjax._scene import next_time
+
+    dt32 = np.float32(1.0 / 540.0)
+    t_sum = np.float32(0.0)
+    t_clock = jnp.float32(0.0)
+    for _ in range(270):
+        t_sum = np.float32(t_sum + dt32)
+        t_clock = next_time(t_clock, dt32)
+    ulp = float(np.spacing(np.float32(0.5)))
+    assert abs(float(t_clock) - 0.5) <= ulp
+    assert abs(float(t_sum) - 0.5) > 10 * ulp  # what the running sum did (15 ulp)
+
+    raw = _lab(
+        **{
+            "domain.cell_size_m": 0.04,
+            "numerics.dt_s": 1.0 / 540.0,
+            "time.t_end_s": 0.5,
+            "time.n_frames": 5,
+        }
+    )
+    setup = build(validate(raw))
+    _, frames = run(setup.scene, setup.state, setup.params)
+    t = np.asarray(frames.t, np.float64)
+    per = 270 // 5
+    k = np.arange(1, 6) if t.shape[0] == 5 else np.arange(t.shape[0])
+    np.testing.assert_allclose(t, k * per * np.float64(dt32), rtol=2e-7)
