@@ -355,7 +355,7 @@ def test_2d_and_3d_extruded_dambreak_agree_with_the_grid_pressure():
     runout): the ghost nodes behind the symmetry faces, which the particles next to them reach,
     got no pressure force (free fall), and the quadratic B-spline's second node from the face has
     47/48 of an interior node's mass but a whole node's pressure force (``_pressure``, "Near walls
-    and the free surface").  Now measured: 5.9e-5 m in positions, 2.0e-5 m in the runout (neither
+    and the free surface").  Now measured: 1.3e-5 m in positions, 1.7e-6 m in the runout (neither
     the CG tolerance, 1e-14 instead of 1e-11, nor the regularisation, 0 instead of 1e-4, moves it;
     not traced further).  Asserted: h/100 = 2e-4 m, a twentieth of the error before."""
     h, blk = 0.02, 0.1
