@@ -208,8 +208,8 @@ _HEAD: dict[str, Key] = {
         "denser than the material are corrected, so the particles can spread (the lab deposit packs at 0.86 at "
         "h = 1 cm and runs 11 % further). position (experimental): every 4th step a second solve moves the particles, "
         "not their velocity, into the deep cells packed below 0.99 (lab packing 0.96), but yield-stress deposits at "
-        "their limit then creep on fine grids, and a slump at 32 cells over its height lost particles with it "
-        "(docs/incompressible.md, Voids).",
+        "their limit then creep on fine grids (a slump at 32 cells over its height: 23 % past its static front, "
+        "still moving; docs/incompressible.md, Voids).",
         choices=("off", "position"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
