@@ -130,7 +130,8 @@ def make_release(scene: Scene):
     A pool particle is released in the step whose interval [t, t + dt) holds its layer
     time; the windows of consecutive steps tile the time axis (each ends where the next
     begins, at ``_scene.next_time``), so each layer is released exactly once (as long as
-    t + dt > t in the state's precision: use float64 for runs whose t / dt exceeds ~1e6).  Released particles start at rest in stress (J = 1,
+    t + dt > t in the state's precision: use float64 for runs whose t / dt exceeds ~1e6).
+    Released particles start at rest in stress (J = 1,
     tau = 0, C = 0) with the rheology's initial internal state and, with an aging gate,
     have not yet passed it (material in the pipe does not age).
     """

@@ -120,17 +120,18 @@ EXTEND_LAYERS = 1
 REGULARISATION = 1e-4
 
 
-def _shifter(periodic):
-    """``shift(a, s, axis)``: a[i - s] along ``axis`` (s = +-1).  A periodic axis wraps (roll); any other
+def _shifter(periodic, lead: int = 0):
+    """``shift(a, s, axis)``: a[i - s] along grid ``axis`` (s = +-1) of an array with ``lead`` axes before
+    the grid's (a stack of fields).  A periodic axis wraps (roll); any other
     axis fills with zero, which equals the wrap there: the wrapped-in entries are the last cell (never
     fluid, so its pressure is zero) or the first ghost node (no mass).  Padding fuses with its
     neighbours where a roll's concatenation does not (XLA:CPU, lab grid: the product A p 38 -> 23 us)."""
 
     def shift(a, s, axis):
         if periodic[axis]:
-            return jnp.roll(a, s, axis=axis)
+            return jnp.roll(a, s, axis=axis + lead)
         cfg = [(0, 0, 0)] * a.ndim
-        cfg[axis] = (s, -s, 0)
+        cfg[axis + lead] = (s, -s, 0)
         return jax.lax.pad(a, jnp.zeros((), a.dtype), cfg)
 
     return shift
@@ -277,13 +278,7 @@ def make_projection(
             out = out | t
         return out
 
-    def _roll_lead(a, s, axis):
-        """``_roll`` of a stack of grid fields (a leading axis before the grid's)."""
-        if scene.periodic[axis]:
-            return jnp.roll(a, s, axis=axis + 1)
-        cfg = [(0, 0, 0)] * a.ndim
-        cfg[axis + 1] = (s, -s, 0)
-        return jax.lax.pad(a, jnp.zeros((), a.dtype), cfg)
+    _roll_lead = _shifter(scene.periodic, lead=1)  # a stack of grid fields
 
     def extend(comps, inside, dtp):
         """Nodal components (dim arrays of grid_shape) -> (N, dim), carried from the ``inside`` nodes to the
