@@ -100,8 +100,12 @@ MODES = ("explicit", "incompressible")
 
 # a cell is fluid (an unknown of the solve) at packing phi_c >= this; below it, p = 0
 FLUID_FRACTION = 0.5
-# relative residual of the pressure solve by precision
-CG_RTOL = {"float32": 1e-5, "float64": 1e-11}
+# relative residual of the pressure solve by precision.  float32: 1e-4 (was 1e-5) saves 11 % of the lab's loop
+# CPU (about 10.5 instead of 15 CG iterations a step) and moves no validate case by more than 0.05 points but
+# the two B = 0.5 blocks, which end near their yield limit (about half a point each); 1e-3 saved 25 % but let
+# deposits at their yield limit creep (the B = 0.05 slump's largest speed at 60 s 1.5 mm/s instead of 0.18)
+# and moved the B = 0.5, L = H0 block 3.7 points (docs/incompressible.md, "The solve's tolerance")
+CG_RTOL = {"float32": 1e-4, "float64": 1e-11}
 CG_MAXITER = 2000
 # the volume error is corrected at this many times the rate 1/sqrt(h/|g|) (see project)
 VOLUME_RELAXATION = 1.0
