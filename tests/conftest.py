@@ -74,3 +74,20 @@ def no_result_pictures(monkeypatch):
 # steps that accumulates to ~1e-13, so 1e-12 leaves an order of magnitude of margin.
 ROUNDOFF = 1e-12
 SHAPES = ("linear", "gimp", "quadratic", "cubic")  # the 1-D shape functions without a boundary modification
+
+
+def signal_in_compile_script(signame: str) -> str:
+    """Python source for ``python -c``: the ``mpmjax`` program (argv after ``-c``), whose run sends itself
+    ``signal.<signame>`` on entering its compile step.  Deterministic where a signal timed from the parent
+    could land after a small scene had compiled (0.8 s on the CI machine)."""
+    return f"""
+import os, signal, sys
+from mpmjax._driver import run as driver_run
+real = driver_run.compile_advance
+def compile_advance(*a, **kw):
+    os.kill(os.getpid(), signal.{signame})
+    return real(*a, **kw)
+driver_run.compile_advance = compile_advance
+from mpmjax.cli import main
+sys.exit(main())  # as the mpmjax program: it ends the process itself
+"""

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import h5py
 import pytest
+from conftest import signal_in_compile_script
 
 import mpmjax
 from mpmjax import _driver
@@ -130,17 +131,7 @@ def test_memory_estimate_covers_the_state_it_builds():
 # terminal.  A signal sent from here once the child logs "scene " raced the compiler: on CI's
 # machine the small scene compiled in 0.8 s, before the signal came, and the run was interrupted at
 # frame 0 instead (stop 39).  Sending it from inside the compile step makes the case deterministic.
-_CTRL_C_IN_COMPILE = """
-import os, signal, sys
-from mpmjax._driver import run as driver_run
-real = driver_run.compile_advance
-def compile_advance(*a, **kw):
-    os.kill(os.getpid(), signal.SIGINT)
-    return real(*a, **kw)
-driver_run.compile_advance = compile_advance
-from mpmjax.cli import main
-sys.exit(main())  # as the mpmjax program: it ends the process itself
-"""
+_CTRL_C_IN_COMPILE = signal_in_compile_script("SIGINT")
 
 
 def test_ctrl_c_while_compiling_exits_130_and_keeps_the_earlier_result(tmp_path):

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from conftest import signal_in_compile_script
 
 ROOT = Path(__file__).resolve().parents[1]
 TWIN = str(ROOT / "data" / "twin-small-dambreak.toml")
@@ -45,17 +46,7 @@ def _signal_after(cmd, text, signum, cwd, delay=0.3, within=30.0):
 # SIGTERM sent from inside the compile step (as tests/test_driver_fault_injection.py does for Ctrl-C): sent
 # from the parent 0.3 s after the scene line, it could land after the small scene had compiled (0.8 s on
 # the CI machine), and the test then only checked "interrupted" somewhere, not "while compiling".
-_SIGTERM_IN_COMPILE = """
-import os, signal, sys
-from mpmjax._driver import run as driver_run
-real = driver_run.compile_advance
-def compile_advance(*a, **kw):
-    os.kill(os.getpid(), signal.SIGTERM)
-    return real(*a, **kw)
-driver_run.compile_advance = compile_advance
-from mpmjax.cli import main
-sys.exit(main())  # as the mpmjax program: it ends the process itself
-"""
+_SIGTERM_IN_COMPILE = signal_in_compile_script("SIGTERM")
 
 
 def test_sigterm_while_a_run_compiles_exits_143_with_one_line(tmp_path):
