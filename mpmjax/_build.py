@@ -603,7 +603,8 @@ def start_warnings(setup: Setup) -> list[str]:
     ``warnings`` (docs/output.md).  Each names the scene key, its value and what to change:
 
     * a body fewer than ``BODY_CELLS_MIN`` cells thick along an axis (an axis it spans whole
-      on a periodic domain does not count);
+      on a periodic domain does not count, nor the vertical of the depth-averaged formulation, whose
+      columns carry the depth: no cell resolves it);
     * ``time.n_frames`` forcing the time step more than ``DT_FORCED_RATIO`` x below the step
       the run would otherwise take (the stable step, or ``numerics.dt_s``): the frame interval
       t_end / n_frames must be a whole number of steps, so a frame interval shorter than the
@@ -621,7 +622,7 @@ def start_warnings(setup: Setup) -> list[str]:
         if not box:  # a shaped body cut by a symmetry face
             lo, hi = np.maximum(lo, sc.lo), np.minimum(hi, sc.hi)
         thin = []
-        for a in range(dim):
+        for a in range(dim - 1 if sc.formulation == "depth-averaged" else dim):
             cells = (hi[a] - lo[a]) / h
             whole_periodic = sc.periodic[a] and hi[a] - lo[a] >= sc.hi[a] - sc.lo[a] - 1e-9 * h
             if cells < BODY_CELLS_MIN - 1e-9 and not whole_periodic:

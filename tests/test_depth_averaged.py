@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mpmjax._build import build
+from mpmjax._build import build, start_warnings
 from mpmjax._schema import SceneError, validate
 from mpmjax._shallow import plan_depth
 from mpmjax._simulate import simulate
@@ -187,6 +187,16 @@ def test_a_scene_with_an_unsupported_option_is_refused():
     raw = _scene(BINGHAM, ([0.2, 0.0], [0.7, 0.05]), 1.0, x_lo="periodic")
     with pytest.raises(SceneError, match="boundary.x_lo = 'periodic'"):
         validate(raw)
+
+
+def test_the_thin_body_warning_counts_plan_cells_only():
+    """A depth-averaged body's depth is carried by its columns, not resolved by cells, so a 5 cm deep
+    block at h = 2 cm (2.5 cells) draws no thickness warning; one 5 cm long in plan (2.5 cells) still
+    does, naming the plan axis x (``_build.start_warnings``)."""
+    deep = build(validate(_scene(BINGHAM, ([0.0, 0.0], [0.3, 0.05]), 0.1, h=0.02, ppc=4, length=1.0)))
+    assert not [w for w in start_warnings(deep) if "thick" in w]
+    short = build(validate(_scene(BINGHAM, ([0.0, 0.0], [0.05, 0.1]), 0.1, h=0.02, ppc=4, length=1.0)))
+    assert [w for w in start_warnings(short) if "2.5 cells along x" in w]
 
 
 # ------------------------------------------------------------------------------ gradient and vmap
