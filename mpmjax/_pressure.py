@@ -255,16 +255,18 @@ def make_projection(
             cols.append(coef * (_roll(t, 1, a) - t))
         return cols
 
-    def to_cell(t, corner):
-        """A nodal field (grid_shape) read at each cell's ``corner`` (an offset in {0, 1}^dim)."""
+    def at(t, o):
+        """A grid field read at index + o (o in {-1, 0, 1}^dim): a cell field at the neighbour cell c + o,
+        or a nodal field at cell c's corner node c + o (o in {0, 1}^dim), or a cell field at node i's
+        cell i + o (o in {-1, 0}^dim)."""
         for a in range(dim):
-            if corner[a]:
-                t = _roll(t, -1, a)
+            if o[a]:
+                t = _roll(t, -int(o[a]), a)
         return t
 
     def corner_sum(g):
         """Sum over a cell's 2^d corner nodes of a nodal scalar (grid_shape)."""
-        return sum(to_cell(g, c) for c in signs)
+        return sum(at(g, c) for c in signs)
 
     fill_c = _np_corner_sum(np.asarray(fill, float).reshape(shape), signs)  # static
     # the pressure's nodal force integrates over the valid cells with the bilinear functions, the node's mass
@@ -290,21 +292,10 @@ def make_projection(
         """The nodes that are a corner of a fluid cell (the nodes the pressure's force reaches)."""
         out = jnp.zeros_like(fluid)
         for sgn in signs:
-            t = fluid
-            for a in range(dim):
-                if sgn[a]:
-                    t = _roll(t, 1, a)
-            out = out | t
+            out = out | at(fluid, -sgn)
         return out
 
     _roll_lead = _shifter(scene.periodic, lead=1)  # a stack of grid fields
-
-    def at(t, o):
-        """A cell field read at each cell's neighbour c + o (o in {-1, 0, 1}^dim)."""
-        for a in range(dim):
-            if o[a]:
-                t = _roll(t, -o[a], a)
-        return t
 
     def stencil(W, fluid, shift):
         """A as a 3^d-point stencil, {o: C_o} with (A q)_c = sum_o C_o[c] q[c + o]: A_{c,c+o} sums over the
@@ -319,7 +310,7 @@ def make_projection(
                     w = sum(float(g1[a] * g2[a]) * W[a] for a in range(dim))
                 else:
                     w = sum(float(g1[a] * g2[b]) * W[a][b] for a in range(dim) for b in range(dim))
-                C[o] = C.get(o, 0.0) + coef**2 * to_cell(w, s1)
+                C[o] = C.get(o, 0.0) + coef**2 * at(w, s1)
         C[(0,) * dim] = C[(0,) * dim] + shift
         return {o: jnp.where(fluid & at(fluid, o), c, 0.0) for o, c in C.items()}
 
@@ -388,7 +379,7 @@ def make_projection(
             for sgn in signs:
                 sg = 2.0 * sgn - 1.0
                 term = sum(float(sg[a] * sg[b]) * W[a][b] for a in range(dim) for b in range(dim))
-                diag = diag + coef**2 * to_cell(term, sgn)
+                diag = diag + coef**2 * at(term, sgn)
         shift = REGULARISATION * diag
         diag = diag + shift
         if operator == "stencil":
