@@ -121,7 +121,8 @@ POSITION_EVERY = 4
 # nodes a particle of a fluid cell reaches (one ring for GIMP and the quadratic and cubic B-splines)
 EXTEND_LAYERS = 1
 # how the solve applies A: "stencil" (2D): its 3^d coefficients per cell formed once a step, then one fused pass
-# per product (lab grid: about 24 us less per CG iteration, -12 % of the lab's loop CPU); "products" (3D):
+# per product, in difference form so that float32 keeps the products' accuracy (``stencil`` in make_projection;
+# lab grid: about 24 us less per CG iteration, -12 % of the lab's loop CPU); "products" (3D):
 # div(S(grad q)) from the nodal weights, which reads 3 arrays instead of 27 (the 27-point stencil was 4 % slower
 # on field-dambreak-3d's 507 x 57 x 11 grid: a product there is bound by memory, not by the passes)
 OPERATOR = {2: "stencil", 3: "products"}
@@ -297,22 +298,36 @@ def make_projection(
 
     _roll_lead = _shifter(scene.periodic, lead=1)  # a stack of grid fields
 
-    def stencil(W, fluid, shift):
-        """A as a 3^d-point stencil, {o: C_o} with (A q)_c = sum_o C_o[c] q[c + o]: A_{c,c+o} sums over the
-        nodes i = c + s = c + o + s' the two cells share coef^2 (2s - 1)^T W_i (2s' - 1), zero unless both
-        cells are fluid; ``shift`` (the regularisation) on the diagonal of the fluid cells."""
+    def stencil(W, fluid, reg):
+        """A as a 3^d-point stencil in difference form: (A q)_c = sum_{o != 0} C_o[c] (q[c + o] - q[c])
+        + (r_c + reg_c) q[c].  A_{c,c+o} = C_o sums over the nodes i = c + s = c + o + s' the two cells
+        share coef^2 (2s - 1)^T W_i (2s' - 1), zero unless both cells are fluid; r_c = sum_o A_{c,c+o}, the
+        row sum, is formed as coef^2 sum_s (2s - 1)^T W_{c+s} n_{c+s} with n_i the sum of the corner signs
+        of node i over its fluid cells: a whole number, zero in the interior, so r_c is exactly zero there
+        (a row of plain coefficients cancels to zero only up to the rounding of its largest term, and in
+        float32 that error grew with the depth of the fluid: 3x the products form's on a 20-cell layer at
+        hydrostatic pressure).  ``reg``: the regularisation on the diagonal.  Returns ({o: C_o}, r + reg),
+        both zero on the cells that are not fluid."""
         C = {}
         for s1 in signs:
             for s2 in signs:
                 o = tuple(int(x) for x in s1 - s2)
+                if not any(o):
+                    continue
                 g1, g2 = 2.0 * s1 - 1.0, 2.0 * s2 - 1.0
                 if diagonal:
                     w = sum(float(g1[a] * g2[a]) * W[a] for a in range(dim))
                 else:
                     w = sum(float(g1[a] * g2[b]) * W[a][b] for a in range(dim) for b in range(dim))
                 C[o] = C.get(o, 0.0) + coef**2 * at(w, s1)
-        C[(0,) * dim] = C[(0,) * dim] + shift
-        return {o: jnp.where(fluid & at(fluid, o), c, 0.0) for o, c in C.items()}
+        dtp = W[0].dtype if diagonal else W[0][0].dtype
+        n = [sum(float(2 * s2[a] - 1) * at(fluid, -s2).astype(dtp) for s2 in signs) for a in range(dim)]
+        if diagonal:
+            wn = [W[a] * n[a] for a in range(dim)]
+        else:
+            wn = [sum(W[a][b] * n[b] for b in range(dim)) for a in range(dim)]
+        r = coef**2 * sum(float(2 * s1[a] - 1) * at(wn[a], s1) for s1 in signs for a in range(dim))
+        return {o: jnp.where(fluid & at(fluid, o), c, 0.0) for o, c in C.items()}, jnp.where(fluid, r + reg, 0.0)
 
     def extend(comps, inside, dtp):
         """Nodal components (dim arrays of grid_shape) -> (N, dim), carried from the ``inside`` nodes to the
@@ -383,10 +398,10 @@ def make_projection(
         shift = REGULARISATION * diag
         diag = diag + shift
         if operator == "stencil":
-            C = stencil(W, fluid, shift)
+            C, r_diag = stencil(W, fluid, shift)
 
             def A(q):
-                return sum(c * at(q, o) for o, c in C.items())
+                return sum(c * (at(q, o) - q) for o, c in C.items()) + r_diag * q
 
         else:
 

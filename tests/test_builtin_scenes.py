@@ -48,7 +48,7 @@ CI_OVERRIDES = {
     "field-dambreak-2d": ["domain.cell_size_m=6.0", "time.t_end_s=60.0", "time.n_frames=6"],
     # 3000 m x 300 m x 24 m half valley; 12 m cells -> 250 x 25 x 2 cells, 50 x 8 x 3 particles; first 30 s
     "field-dambreak-3d": ["domain.cell_size_m=12.0", "time.t_end_s=30.0", "time.n_frames=3"],
-    # depth-averaged Wanji: 8000 m x 300 m plan; 10 m cells -> 800 x 30 cells, 60 x 10 columns; first 40 s
+    # depth-averaged Wanji: 8000 m x 300 m plan; 10 m cells -> 800 x 30 cells, the block 120 x 20 columns; first 40 s
     "field-dambreak-da": ["domain.cell_size_m=10.0", "time.t_end_s=40.0", "time.n_frames=4"],
     # quarter cylinder of 100 mm x 100 mm; 12.5 mm cells -> 4 cells across the radius, 8 up; the first 0.2 s
     "slump-test": ["domain.cell_size_m=0.0125", "time.t_end_s=0.2", "time.n_frames=4"],
