@@ -82,10 +82,11 @@ def test_projection_is_divergence_free(dim):
     np.testing.assert_allclose(np.asarray(P(v_new)), np.asarray(v_new), atol=1e-12)
 
 
-@pytest.mark.parametrize("dim, walls", [(2, "box"), (2, "plane"), (2, "periodic"), (3, "box")])
+@pytest.mark.parametrize("dim, walls", [(2, "box"), (2, "plane"), (2, "periodic")])
 def test_stencil_and_products_are_the_same_operator(dim, walls):
     """The solve applies A as a 3^d-point stencil formed once a step in 2D and as div(S(grad q)) in 3D
-    (``_pressure.OPERATOR``: the faster form of each).  Both are the same matrix: on a rough predictor
+    (``_pressure.OPERATOR``: the faster form of each).  Both are the same matrix (checked in 2D, where
+    the stencil is used; its code is the same for any dimension): on a rough predictor
     (its fluid cells, packing and masses from a layer's particles) they agree on random cell fields to
     1e-12 relative (float64 rounding of up to 16 terms a cell), with box walls, with an inclined slip
     plane, whose conditions mix the components (S not diagonal), and with a periodic x axis (the
@@ -102,15 +103,21 @@ def test_stencil_and_products_are_the_same_operator(dim, walls):
     rng = np.random.default_rng(1)
     v = P(jnp.where(has[:, None], v + jnp.asarray(rng.normal(0.0, 0.1, v.shape)), 0.0))
     fill = _boundary.node_fill(s.scene)
-    out = {
-        op: _pressure.make_projection(s.scene, P, fill, operator=op)(v, mass, inv_m, has, s.params)
-        for op in ("stencil", "products")
-    }
-    (_, p_s, _, (A_s, _)), (_, p_p, _, (A_p, _)) = out["stencil"], out["products"]
-    for _ in range(3):
-        x = jnp.asarray(rng.normal(size=p_s.shape))
-        ref = np.asarray(A_p(x))
-        assert np.max(np.abs(np.asarray(A_s(x)) - ref)) <= 1e-12 * np.max(np.abs(ref))
+    xs = jnp.asarray(rng.normal(size=(3,) + tuple(s.scene.grid_shape)))  # three random cell fields
+
+    def solve_and_apply(op):  # compiled: the pressure and A applied to each field
+        project = _pressure.make_projection(s.scene, P, fill, operator=op)
+
+        def f(v, mass, inv_m, has, params, xs):
+            _, p, _, (A, _) = project(v, mass, inv_m, has, params)
+            return p, jnp.stack([A(x) for x in xs])
+
+        return jax.jit(f)(v, mass, inv_m, has, s.params, xs)
+
+    (p_s, A_s), (p_p, A_p) = solve_and_apply("stencil"), solve_and_apply("products")
+    for k in range(3):
+        ref = np.asarray(A_p[k])
+        assert np.max(np.abs(np.asarray(A_s[k]) - ref)) <= 1e-12 * np.max(np.abs(ref))
     assert float(jnp.max(jnp.abs(p_s - p_p))) <= 1e-9 * float(jnp.max(jnp.abs(p_p)))
 
 
@@ -128,14 +135,21 @@ def test_float32_operator_is_as_accurate_as_the_products_on_a_deep_layer():
     f64 = lambda a: jnp.asarray(a, jnp.float64)  # noqa: E731
     params64 = jax.tree_util.tree_map(lambda a: f64(a) if getattr(a, "dtype", None) == jnp.float32 else a, s.params)
     yc = sc.grid_origin[1] + sc.h * (np.arange(sc.grid_shape[1]) + 0.5)
+    # the hydrostatic pressure of the layer (top at 0.2 m, on a cell face: 20 full cells); A ignores the
+    # cells that are not fluid
+    x = jnp.broadcast_to(1500.0 * 9.81 * jnp.maximum(0.2 - jnp.asarray(yc), 0.0)[None, :], tuple(sc.grid_shape))
+    assert int(np.sum((yc > 0.0) & (yc < 0.2))) == 20
     for op in ("stencil", "products"):
         project = _pressure.make_projection(sc, P, fill, operator=op)
-        _, p32, _, (A32, _) = project(v, mass, inv_m, has, s.params)
-        _, _, _, (A64, _) = project(f64(v), f64(mass), f64(inv_m), has, params64)
-        x = jnp.where(p32 != 0.0, 1500.0 * 9.81 * jnp.maximum(0.2 - jnp.asarray(yc)[None, :], 0.0), 0.0)
-        assert int(jnp.sum(x[20] > 0.0)) == 20  # 20 fluid cells over the depth
-        ref = np.asarray(A64(x))
-        err = np.max(np.abs(np.asarray(A32(x.astype(jnp.float32)), float) - ref)) / np.max(np.abs(ref))
+
+        @jax.jit
+        def apply(v, mass, inv_m, has, params, x):
+            return project(v, mass, inv_m, has, params)[3][0](x)
+
+        got = np.asarray(apply(v, mass, inv_m, has, s.params, x.astype(jnp.float32)), float)
+        ref = np.asarray(apply(f64(v), f64(mass), f64(inv_m), has, params64, x))
+        assert np.sum(ref[20] != 0.0) >= 18  # A reaches the column's fluid cells
+        err = np.max(np.abs(got - ref)) / np.max(np.abs(ref))
         assert err <= 3e-6, (op, err)
 
 
