@@ -122,7 +122,8 @@ POSITION_EVERY = 4
 EXTEND_LAYERS = 1
 # how the solve applies A: "stencil" (2D): its 3^d coefficients per cell formed once a step, then one fused pass
 # per product, in difference form so that float32 keeps the products' accuracy (``stencil`` in make_projection;
-# lab grid: about 24 us less per CG iteration, -12 % of the lab's loop CPU); "products" (3D):
+# lab grid: about 24 us less per CG iteration, the lab's loop -9 % CPU and -14 % wall against the products,
+# alternating); "products" (3D):
 # div(S(grad q)) from the nodal weights, which reads 3 arrays instead of 27 (the 27-point stencil was 4 % slower
 # on field-dambreak-3d's 507 x 57 x 11 grid: a product there is bound by memory, not by the passes)
 OPERATOR = {2: "stencil", 3: "products"}
@@ -320,7 +321,7 @@ def make_projection(
                 else:
                     w = sum(float(g1[a] * g2[b]) * W[a][b] for a in range(dim) for b in range(dim))
                 C[o] = C.get(o, 0.0) + coef**2 * at(w, s1)
-        dtp = W[0].dtype if diagonal else W[0][0].dtype
+        dtp = (W[0] if diagonal else W[0][0]).dtype
         n = [sum(float(2 * s2[a] - 1) * at(fluid, -s2).astype(dtp) for s2 in signs) for a in range(dim)]
         if diagonal:
             wn = [W[a] * n[a] for a in range(dim)]
