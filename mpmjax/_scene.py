@@ -177,8 +177,9 @@ class Scene:
       slab_capacity: with ``slab``, particle slots per device relative to an even share.
       pressure: ``explicit`` (the Tait EOS of each particle's J) or ``incompressible`` (one pressure
         per grid cell solved each step; ``_pressure``).
-      void_closure: with ``incompressible``, ``off`` or ``position`` (voids closed by moving the
-        particles; ``_pressure``, step 4).
+      void_closure: with ``incompressible``, ``off``, ``position`` (voids closed by moving the
+        particles) or ``velocity`` (the deep cells' packing error corrected both ways in the pressure
+        solve); ``_pressure``, step 4.
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
         ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
     """
