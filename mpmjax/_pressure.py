@@ -22,11 +22,12 @@ pair: bilinear/trilinear velocity, cell-constant pressure):
    creeps on (+16 % at 60 s).  Even with it, that slump creeps at 32 cells over H0 (+16 % at 60 s,
    against -0.9 % with the closure off) and the lab runout stops converging in h
    (docs/incompressible.md), hence off by default.
-   ``numerics.void_closure = "velocity"`` closes the voids in the pressure solve itself, at no extra
-   cost: on the deep cells the packing error is corrected both ways, r V_c e(phi_c - 1) with e the
-   error beyond ``VELOCITY_DEAD_BAND`` (so B v = r V_c e / dt there), and only the overpacking
-   elsewhere.  Correcting only the overpacking is a ratchet: with no correction at all the lab
-   deposit packs at 1.265, with the overpacking corrected at 0.856, with both at 0.942.
+   ``numerics.void_closure = "velocity"`` closes the voids in the pressure solve itself (no second
+   solve): on the deep cells the packing error e = phi_c - 1 is corrected both ways beyond
+   ``VELOCITY_DEAD_BAND`` (so B v = r V_c e / dt there, an overpacked deep cell corrected from 1.01
+   instead of 1.00), and only the overpacking elsewhere.  Correcting only the overpacking is a
+   ratchet: with no correction at all the lab deposit packs at 1.265, with the overpacking corrected
+   at 0.856, with both at 0.942.
 
 Here B v is the cell's volume rate, the integral over the cell of div v with the bilinear
 (trilinear) interpolant of the nodal velocities: B_ci = int_c grad N_i dV = (h/2)^(d-1) s, s the
@@ -51,10 +52,11 @@ which couple to nothing the walls leave free).  (phi_c - 1)^+ is the volume corr
 denser than its material is pushed back apart, at the rate r = dt / sqrt(h/|g|) (the free-fall time
 across a cell; ``VOLUME_RELAXATION`` scales it), not in one step: the packing fluctuates by a few
 per cent as particles cross cells, and a one-step correction turns that into velocity noise (h/dt
-times the fluctuation) that fluidises a thixotropic deposit.  Under-filled cells are not pulled
-together by the velocity: closing them that way (phi_c - 1 in cells surrounded by fluid) kept
-yield-stress slumps creeping past x_inf (+21 % and +41 %).  Left open, though, the particles spread
-(the lab deposit's interior packed at 0.85 at h = 1 cm, 0.89 at 0.5 cm): step 4 can close them.
+times the fluctuation) that fluidises a thixotropic deposit.  By default under-filled cells are not
+pulled together by the velocity: closing them that way in every cell surrounded by fluid, with no
+dead band, kept yield-stress slumps creeping past x_inf (+21 % and +41 %).  Left open, though, the
+particles spread (the lab deposit's interior packed at 0.85 at h = 1 cm, 0.89 at 0.5 cm): step 4's
+closures close them (``velocity``: the deep cells only, beyond a 1 % dead band).
 
 Near walls and the free surface.  Two places where the pressure's force and the particles' mass
 disagree, both fixed here (issue 31; measured in docs/incompressible.md):
@@ -123,7 +125,7 @@ POSITION_RELAXATION = 1.0
 POSITION_DEAD_BAND = 0.01
 # numerics.void_closure = "velocity": a deep cell's packing error is corrected only beyond this (both ways)
 VELOCITY_DEAD_BAND = 0.01
-# the void closure runs every this many steps
+# the position closure runs every this many steps
 POSITION_EVERY = 4
 # the pressure's velocity change is carried this many rings of nodes out from the fluid cells' corners: the
 # nodes a particle of a fluid cell reaches (one ring for GIMP and the quadratic and cubic B-splines)

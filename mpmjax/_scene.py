@@ -179,7 +179,7 @@ class Scene:
         per grid cell solved each step; ``_pressure``).
       void_closure: with ``incompressible``, ``off``, ``position`` (voids closed by moving the
         particles) or ``velocity`` (the deep cells' packing error corrected both ways in the pressure
-        solve); ``_pressure``, step 4.
+        solve itself); ``_pressure``, step 4.
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
         ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
     """

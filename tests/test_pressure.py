@@ -317,7 +317,7 @@ def test_voids_close_by_moving_particles_or_through_the_solve():
     the free surface, both read 0.02-0.04 m/s, the surface particles' share of free fall).
     ``velocity`` closes the same voids in the pressure solve itself (measured mean 0.994, least
     0.986): through the velocity, so the layer is still settling at 0.5 s (measured 0.013 m/s, 1 % of
-    sqrt(g H); the closure's rate is 1/sqrt(h/g), 0.1 s here, and it moves 2 cm of material)."""
+    sqrt(g H); the closure's time is sqrt(h/g), 0.07 s here, and it moves 2 cm of material)."""
     out = {}
     for closure in ("position", "off", "velocity"):
         s = _layer(mu=5.0, t_end=0.5, extra={"numerics.void_closure": closure})

@@ -209,10 +209,11 @@ _HEAD: dict[str, Key] = {
         "h = 1 cm and runs 11 % further). position (experimental): every 4th step a second solve moves the particles, "
         "not their velocity, into the deep cells packed below 0.99 (lab packing 0.96), but yield-stress deposits at "
         "their limit then creep on fine grids (a slump at 32 cells over its height: 23 % past its static front, "
-        "still moving; docs/incompressible.md, Voids). velocity (experimental): the same solve also corrects the "
-        "deep cells packed below 0.99, at no extra cost (lab packing 0.94, runout 1.275 m instead of 1.413; the "
-        "inertial slump -1.0 % instead of +6.5 %), but the yield-stress slumps then stop short at 16 cells over "
-        "their height (-12 % against -3.4 % with off, which dilation flattered; -6 % at 32 cells).",
+        "still moving; docs/incompressible.md, Voids). velocity (experimental): the pressure solve itself corrects "
+        "the deep cells' packing both ways beyond 1 % (packed below 0.99 or above 1.01), with no second solve "
+        "(lab packing 0.94, runout 1.275 m instead of 1.413; the inertial slump -1.0 % instead of +6.5 %), but "
+        "the yield-stress slumps then stop short at 16 cells over their height (-12 % against -3.4 % with off, "
+        "which dilation partly flattered; -6 % at 32 cells).",
         choices=("off", "position", "velocity"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
