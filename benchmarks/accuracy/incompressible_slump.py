@@ -6,9 +6,13 @@ B = tau_y L/(rho g H0^2); prints the front per frame and its error as one JSON l
 
     .venv/bin/python benchmarks/accuracy/incompressible_slump.py B ASPECT CELLS_OVER_H0 T_END [key=value ...]
     .venv/bin/python benchmarks/accuracy/incompressible_slump.py 0.05 1 16 20 numerics.pressure=incompressible
+
+With MPMJAX_SLUMP_DUMP=FILE.npz the final particles (positions, volumes, deviatoric stress) are saved
+for benchmarks/accuracy/deposit_shape.py.
 """
 import json
 import math
+import os
 import sys
 import time
 
@@ -62,3 +66,5 @@ area_ratio = float(np.sum(top) * h / np.sum(Ja * V0a))
 print(json.dumps(dict(B=B, asp=asp, cells=cells, over=over, xinf=xinf, front=fronts[-1], err_pct=100*(fronts[-1]-xinf)/xinf,
       fronts=[round(f_,4) for f_ in fronts], packing=packing, area_ratio=area_ratio, vmax=float(np.abs(v).max()), dt=sc.dt, steps=sc.n_steps, wall=wall, cpu=cpu,
       J=[float(np.asarray(st.J)[a].min()), float(np.asarray(st.J)[a].max())], lost=int(st.n_lost))))
+if os.environ.get("MPMJAX_SLUMP_DUMP"):
+    np.savez(os.environ["MPMJAX_SLUMP_DUMP"], x=xa, vol=V0a, dev=np.asarray(st.tau)[a], h=h, tau=tau, rho=rho, g=g, xinf=xinf)
