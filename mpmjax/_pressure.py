@@ -13,7 +13,7 @@ pair: bilinear/trilinear velocity, cell-constant pressure):
 4. voids (``numerics.void_closure = "position"``; off by default): the interior's voids are closed by
    moving the particles, not their velocity: a second
    solve with the same A for a displacement d = m^-1 S B^T q with B d = r V_c (phi_c - 1) on the
-   deep cells packed below 1 - ``POSITION_DEAD_BAND`` (0 on the other fluid cells), added to the
+   deep cells packed below 1 - ``PACKING_DEAD_BAND`` (0 on the other fluid cells), added to the
    particles' positions after G2P (``_step``).  Deep: every cell of the 3^d block around it holds fluid
    all round (phi_c reads the corner nodes, whose mass comes from that block, so only there is it the
    material's packing and not the free surface's).  No velocity is added, so no kinetic energy;
@@ -24,7 +24,7 @@ pair: bilinear/trilinear velocity, cell-constant pressure):
    (docs/incompressible.md), hence off by default.
    ``numerics.void_closure = "velocity"`` closes the voids in the pressure solve itself (no second
    solve): on the deep cells the packing error e = phi_c - 1 is corrected both ways beyond
-   ``VELOCITY_DEAD_BAND`` (so B v = r V_c e / dt there, an overpacked deep cell corrected from 1.01
+   ``PACKING_DEAD_BAND`` (so B v = r V_c e / dt there, an overpacked deep cell corrected from 1.01
    instead of 1.00), and only the overpacking elsewhere.  Correcting only the overpacking is a
    ratchet: with no correction at all the lab deposit packs at 1.265, with the overpacking corrected
    at 0.856, with both at 0.942.
@@ -121,10 +121,10 @@ VOLUME_RELAXATION = 1.0
 # numerics.void_closure = "position": the voids of the deep cells are closed by moving the particles, not
 # their velocity, at this many times the rate 1/sqrt(h/|g|) (see project)
 POSITION_RELAXATION = 1.0
-# voids shallower than this are left (the grid packing fluctuates by about a per cent as particles cross cells)
-POSITION_DEAD_BAND = 0.01
-# numerics.void_closure = "velocity": a deep cell's packing error is corrected only beyond this (both ways)
-VELOCITY_DEAD_BAND = 0.01
+# both void closures leave a deep cell's packing error within this alone (the grid packing fluctuates by about
+# a per cent as particles cross cells): ``position`` closes voids deeper than it, ``velocity`` corrects the error
+# beyond it, both ways
+PACKING_DEAD_BAND = 0.01
 # the position closure runs every this many steps
 POSITION_EVERY = 4
 # the pressure's velocity change is carried this many rings of nodes out from the fluid cells' corners: the
@@ -392,7 +392,7 @@ def make_projection(
             # the deep cells' packing error both ways, outside a dead band (the packing's own fluctuation):
             # correcting only the overpacking is a ratchet that leaves the particles spread (step 4)
             err = phi - 1.0
-            err = jnp.sign(err) * jnp.maximum(jnp.abs(err) - VELOCITY_DEAD_BAND, 0.0)
+            err = jnp.sign(err) * jnp.maximum(jnp.abs(err) - PACKING_DEAD_BAND, 0.0)
             excess = jnp.where(deep_cells(fluid, valid, scene.periodic), err, excess)
         excess = rate * excess
         b = jnp.where(fluid, (vol_c * excess / scene.dt - div(vs)) / scene.dt, 0.0)
@@ -456,7 +456,7 @@ def make_projection(
             p, q = solve(b, p0), None
         else:
             b_x = jnp.where(
-                deep_cells(fluid, valid, scene.periodic) & (phi < 1.0 - POSITION_DEAD_BAND), (phi - 1.0) * vol_c, 0.0
+                deep_cells(fluid, valid, scene.periodic) & (phi < 1.0 - PACKING_DEAD_BAND), (phi - 1.0) * vol_c, 0.0
             )
             b_x = jnp.minimum(1.0, POSITION_RELAXATION * POSITION_EVERY * scene.dt * jnp.sqrt(g_mag / h)) * b_x
             p = solve(b, p0)
