@@ -37,21 +37,23 @@ def test_thin_body_names_the_body_the_axis_and_the_cell_size():
 
 def test_n_frames_forcing_a_small_step_says_so_with_the_run_time():
     # a frame every 0.1 ms against a stable step of 1.26 ms: each frame one step of 0.1 ms
-    setup, w = _warnings("domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5000")
+    # the particles' pressure: its sound speed sets the stable step
+    explicit = "numerics.pressure=explicit"
+    setup, w = _warnings("domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=5000", explicit)
     (msg,) = w
     assert setup.scene.dt == pytest.approx(1e-4) and setup.scene.steps_per_frame == 1
     assert msg.startswith("time.n_frames = 5000 forces dt = 0.0001 s, 12.6x below the stable time step")
     assert "time.t_end_s = 0.5 s" in msg and "estimated run time" in msg
     # the fix it names brings the step back within 2x of the limit: t_end / n_frames >= dt
     assert "set time.n_frames <= 395" in msg
-    ok = m.build(m.load_scene("dambreak-lab", ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=395"]))
+    ok = m.build(m.load_scene("dambreak-lab", ["domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=395", explicit]))
     assert start_warnings(ok) == [] and ok.scene.dt >= 0.5 * ok.info["dt_limit_s"]
     # 10x is the line: a frame every 0.2 ms (6.3x) is not warned about
-    assert _warnings("domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=2500")[1] == []
+    assert _warnings("domain.cell_size_m=0.02", "time.t_end_s=0.5", "time.n_frames=2500", explicit)[1] == []
 
 
 def test_stiff_bulk_modulus_needing_over_a_million_steps():
-    setup, w = _warnings("domain.cell_size_m=0.02", "material.bulk_modulus_pa=1e12")
+    setup, w = _warnings("domain.cell_size_m=0.02", "material.bulk_modulus_pa=1e12", "numerics.pressure=explicit")
     (msg,) = w
     assert setup.scene.n_steps > STEPS_WARN
     assert msg.startswith(f"the run needs {setup.scene.n_steps} steps")

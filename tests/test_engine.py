@@ -260,7 +260,7 @@ def test_free_fall_matches_symplectic_euler():
 
 
 @functools.cache
-def _hydrostatic(shape="gimp", h=0.01):
+def _hydrostatic(shape="gimp", h=0.01, pressure=None):
     """0.1 m x 0.2 m Newtonian column (mu = 300 Pa s) in a box with slip side walls,
     no-slip base and slip lid (0.24 m), settled under gravity for 1.5 s."""
     cfg = _cfg(
@@ -273,7 +273,7 @@ def _hydrostatic(shape="gimp", h=0.01):
         t_end=1.5,
         n_frames=5,
         mu=300.0,
-        numerics={"shape": shape},
+        numerics={"shape": shape} | ({"pressure": pressure} if pressure else {}),
     )
     s = m.build(cfg)
     final, frames = m.run(s.scene, s.state, s.params)
@@ -296,7 +296,8 @@ def test_hydrostatic_column_pressure():
     (measured 0.9 %).  Settling: max |v| < 1e-4 m/s at 1.5 s (measured ~2e-7).
     """
     h = 0.01
-    s, final, frames = _hydrostatic("gimp", h)
+    # the particles' pressure, Tait(J) (the grid pressure's column: tests/test_pressure.py)
+    s, final, frames = _hydrostatic("gimp", h, pressure="explicit")
     assert int(final.n_lost) == 0
     vmax = float(np.max(np.abs(final.v)))
     assert vmax < 1e-4, vmax

@@ -24,7 +24,10 @@ from mpmjax import _fusion, _simulate
 
 RAW = {
     "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [0.6, 0.3], "cell_size_m": 0.03},
-    "numerics": {"dtype": "float64", "shape": "gimp", "ppc": 2},
+    # the particles' pressure: these tests compare code paths to 1e-12 (REL), below the rounding of the grid
+    # pressure's conjugate gradients (5e-10 to 2.4e-9 relative in float64); tests/test_pressure.py checks the
+    # grid pressure's derivatives against finite differences
+    "numerics": {"dtype": "float64", "shape": "gimp", "ppc": 2, "pressure": "explicit"},
     "time": {"t_end_s": 0.1, "n_frames": 3},
     "material": dict(COUSSOT_BASE),
     "bodies": [{"lo_m": [0.0, 0.0], "hi_m": [0.2, 0.15]}],

@@ -65,7 +65,9 @@ TOL = 1e-3
 def _raw(model, t_end=0.3, h=0.03, n_frames=3, block=(0.2, 0.15)):
     return {
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [0.6, 0.3], "cell_size_m": h},
-        "numerics": {"dtype": "float64", "shape": "gimp", "ppc": 2},
+        # the particles' pressure, for which the table above was measured (and kappa has a derivative);
+        # the grid pressure's derivatives: tests/test_pressure.py
+        "numerics": {"dtype": "float64", "shape": "gimp", "ppc": 2, "pressure": "explicit"},
         "time": {"t_end_s": t_end, "n_frames": n_frames},
         "material": dict(model),
         "bodies": [{"lo_m": [0.0, 0.0], "hi_m": list(block)}],

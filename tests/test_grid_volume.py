@@ -79,6 +79,7 @@ def _thin_deposit(cap: float):
         "numerics.dtype=float64",
         "numerics.ppc=2",  # the scene's default, and the overpacked case: at ppc 3 the excess is small
         f"numerics.grid_density_cap={cap}",
+        "numerics.pressure=explicit",  # the cap is a device of the particles' pressure
     ]
     setup = build(load_scene("flume-deposition", over))
     sc = setup.scene
@@ -122,7 +123,7 @@ def test_thin_deposit_excess_is_mostly_removed(deposits):
 
 def _slump(h: float, ppc: int, cap: float):
     """The Bingham slump of ``mpmjax converge --case slump`` (6 s, to rest) at cell size h."""
-    setup = build(cv.case_config("slump", {"domain.cell_size_m": h, "numerics.ppc": ppc, "numerics.grid_density_cap": cap}))
+    setup = build(cv.case_config("slump", {"domain.cell_size_m": h, "numerics.ppc": ppc, "numerics.grid_density_cap": cap, "numerics.pressure": "explicit"}))
     sc = setup.scene
     final, _ = jax.jit(lambda s, p: _simulate.simulate(sc, s, p))(setup.state, setup.params)
     x, J, vol0 = np.asarray(final.x), np.asarray(final.J), np.asarray(final.vol0)

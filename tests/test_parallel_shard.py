@@ -40,8 +40,8 @@ print(json.dumps({
 
 
 def test_two_host_devices_give_the_one_device_positions():
-    """The lab dam break (399 particles, float64, 119 steps) on 2 host devices ends where it ends
-    on one, to 1e-12 m in position and 1e-11 in J.
+    """The lab dam break (399 particles, float64, 119 steps with the explicit pressure, 81 with the
+    grid pressure) on 2 host devices ends where it ends on one, to 1e-12 m in position and 1e-11 in J.
 
     The sharded step differs from the single-device one only in the order of the floating-point
     additions that build the grid (two partial scatters summed by ``psum`` against one scatter):
@@ -58,7 +58,7 @@ def test_two_host_devices_give_the_one_device_positions():
     )
     assert p.returncode == 0, p.stderr[-3000:]
     r = json.loads(p.stdout.strip().splitlines()[-1])
-    assert r["n_dev"] == 2 and r["steps"] > 100 and r["n"] == 399 and r["sharded"] == 2, r
+    assert r["n_dev"] == 2 and r["steps"] > 50 and r["n"] == 399 and r["sharded"] == 2, r
     assert r["moved"] > 1e-3, r  # the block has flowed: the comparison is not of a state at rest
     assert r["dx"] < 1e-12, r
     assert r["dJ"] < 1e-11, r

@@ -39,7 +39,7 @@ from mpmjax._build import build, memory_estimate
 from mpmjax._schema import load_scene
 from mpmjax._simulate import make_chunk
 ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.15", "time.n_frames=1", "numerics.dtype=float64", "numerics.ppc=2",
-      "numerics.devices=2", "numerics.decomposition=slab"]
+      "numerics.devices=2", "numerics.decomposition=slab", "numerics.pressure=explicit"]
 out = {"n_dev": jax.device_count()}
 def cut(setup):
     n = setup.scene.n_particles
@@ -245,9 +245,10 @@ def test_memory_estimate_counts_the_devices_grids_and_slots():
     """The pre-run memory check counts one grid per device (the replicated grid, and slabs' windows,
     which span about the whole grid) and, with slabs, slab_capacity x the particles (the slots,
     empty ones included): on 2 devices 2x the grid bytes, with slabs also 1.5x the particle bytes."""
-    one = memory_estimate(m.load_scene("dambreak-lab"))
-    rep = memory_estimate(m.load_scene("dambreak-lab", ["numerics.devices=2"]))
-    slab = memory_estimate(m.load_scene("dambreak-lab", ["numerics.devices=2", "numerics.decomposition=slab"]))
+    explicit = ["numerics.pressure=explicit"]  # the slab decomposition's pressure (the grid solve is replicated)
+    one = memory_estimate(m.load_scene("dambreak-lab", explicit))
+    rep = memory_estimate(m.load_scene("dambreak-lab", explicit + ["numerics.devices=2"]))
+    slab = memory_estimate(m.load_scene("dambreak-lab", explicit + ["numerics.devices=2", "numerics.decomposition=slab"]))
     assert rep["grid_bytes"] == 2 * one["grid_bytes"] and rep["particle_bytes"] == one["particle_bytes"]
     assert slab["grid_bytes"] == rep["grid_bytes"]
     assert slab["particle_bytes"] == pytest.approx(1.5 * one["particle_bytes"], rel=1e-12)
@@ -260,7 +261,7 @@ def test_a_run_that_drops_particles_for_want_of_slots_stops_and_says_so(tmp_path
     run that loses particles through no open face) and its hint names numerics.slab_capacity."""
     out = tmp_path / "o"
     cmd = [sys.executable, "-m", "mpmjax.cli", "run", "dambreak-lab", "--devices", "2", "--quiet", "--out", str(out),
-           "--set", "numerics.decomposition=slab", "--set", "numerics.slab_capacity=1.0", "--set", "time.t_end_s=0.01"]
+           "--set", "numerics.decomposition=slab", "--set", "numerics.pressure=explicit", "--set", "numerics.slab_capacity=1.0", "--set", "time.t_end_s=0.01"]
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
     assert p.returncode == 3, p.stderr[-2000:]

@@ -374,7 +374,10 @@ def _validate_material(flat: dict, out: dict) -> None:
 
 def _check_pressure(out: dict):
     """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
-    and the slab decomposition (whose halos the grid solve does not exchange) are refused."""
+    and the slab decomposition (whose halos the grid solve does not exchange) are refused.  The
+    depth-averaged step uses neither pressure; ``_validate_formulation`` checks its keys."""
+    if out["model.formulation"] == "depth-averaged":
+        return
     if out["numerics.pressure"] == "explicit":
         if out["numerics.void_closure"] != "off":
             raise SceneError(
@@ -631,9 +634,10 @@ def _validate_axes(out: dict, dim: int):
             )
 
 
-# model.formulation = "depth-averaged": the keys of the full model it does not take, with the value they must keep
+# model.formulation = "depth-averaged": the keys of the full model it does not take, with the value they must keep.
+# numerics.pressure is not among them: the depth-averaged step uses neither value (its pressure is the column's
+# hydrostatic rho g_n H, and its depth the column's volume over its area), so either is accepted
 _DA_FIXED = {
-    "numerics.pressure": "explicit",
     "numerics.volume_averaging": "none",
     "numerics.grid_density_cap": 0.0,
     "numerics.force": "gradient",
