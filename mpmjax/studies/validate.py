@@ -74,10 +74,11 @@ def _failed(rec: dict, final, n_particles: int) -> bool:
     return False
 
 
-def _run_frames(cfg: dict, rec: dict, params_fn: Callable | None = None):
+def _run_frames(cfg: dict, rec: dict, params_fn: Callable | None = None, each: Callable | None = None):
     """Run a validated scene frame by frame with one compiled frame advance; adds the loop's CPU
-    and wall time (compile excluded) and the step count to ``rec``.  Returns (setup, final state,
-    [front at the end of every frame] [m], [frame end times] [s])."""
+    and wall time (compile excluded) and the step count to ``rec``; ``each(state)`` is called after
+    every frame.  Returns (setup, final state, [front at the end of every frame] [m], [frame end
+    times] [s])."""
     s = build(cfg)
     sc = s.scene
     params = params_fn(s) if params_fn else s.params
@@ -96,6 +97,8 @@ def _run_frames(cfg: dict, rec: dict, params_fn: Callable | None = None):
         wall += time.perf_counter() - w0
         fronts.append(gauge.front(np.asarray(st.x), np.asarray(st.vol0), np.asarray(st.active, bool)))
         times.append(float(st.t))
+        if each is not None:
+            each(st)
     rec["cpu_s"] = rec.get("cpu_s", 0.0) + cpu
     rec["wall_s"] = rec.get("wall_s", 0.0) + wall
     rec["n_steps"] = rec.get("n_steps", 0) + int(sc.n_steps)
@@ -296,6 +299,68 @@ def _poiseuille(bingham: bool):
         ]
 
     return cfgs, run
+
+
+# --------------------------------------------------------------------------------------
+# a Bingham layer on an incline just above its yield limit (the arrest regime)
+# --------------------------------------------------------------------------------------
+
+INCLINE_H, INCLINE_SLOPE, INCLINE_MU, INCLINE_R = 0.1, 30.0, 20.0, 1.1  # depth [m], [deg], [Pa s], tau_b / tau_y
+INCLINE_SIZE = {"full": {"cells": 20, "t_end": 1.0}, "ci": {"cells": 5, "t_end": 0.1}}  # cells across the depth
+INCLINE_AVERAGE_S = 0.3  # the plug speed is averaged over the frames of the run's last 0.3 s
+
+
+def _incline_cfgs(size, base):
+    """A layer INCLINE_H deep, periodic along the slope (4 cells), no-slip bed, free surface, with
+    tau_y = tau_b / INCLINE_R: the sheared layer delta = H (1 - 1/r) = 9.1 mm is 1.8 cells at the full
+    size, the regime where a deposit arrests (docs/incompressible.md, "At the yield limit")."""
+    h = INCLINE_H / INCLINE_SIZE[size]["cells"]
+    tau_b = RHO * G * INCLINE_H * math.sin(math.radians(INCLINE_SLOPE))
+    mat = {
+        "model": "bingham",
+        "density_kg_m3": RHO,
+        "bulk_modulus_pa": 2e5,
+        "viscosity_pa_s": INCLINE_MU,
+        "yield_stress_pa": tau_b / INCLINE_R,
+        "papanastasiou_m_s": 1000.0,
+    }
+    t_end = INCLINE_SIZE[size]["t_end"]
+    raw = {
+        "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [4 * h, INCLINE_H + 5 * h], "cell_size_m": h},
+        "boundary": {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "slip"},
+        "numerics": {"ppc": 2},
+        "time": {"t_end_s": t_end, "n_frames": 10},
+        "material": mat,
+        "gravity": {"g_m_s2": G, "slope_deg": INCLINE_SLOPE},
+        "bodies": [{"lo_m": [0.0, 0.0], "hi_m": [4 * h, INCLINE_H]}],
+    }
+    return [validate(_nested(raw, base))]
+
+
+def incline_plug_speed() -> float:
+    """Steady plug speed [m/s] of the Bingham film: rho g sin(theta) delta^2 / (2 mu), delta = H (1 - 1/r)
+    the sheared layer under the plug h_p = tau_y / (rho g sin(theta)) (the layer's momentum balance:
+    tau = rho g sin(theta) (H - y), yielding below y = delta)."""
+    delta = INCLINE_H * (1.0 - 1.0 / INCLINE_R)
+    return RHO * G * math.sin(math.radians(INCLINE_SLOPE)) * delta**2 / (2.0 * INCLINE_MU)
+
+
+def _incline_run(size, base, rec):
+    (cfg,) = _incline_cfgs(size, base)
+    t_end = INCLINE_SIZE[size]["t_end"]
+    speeds = []
+
+    def plug(st):  # the top fifth of the layer's particles (initially), inside the plug
+        if float(st.t) >= t_end - INCLINE_AVERAGE_S - 1e-9:
+            speeds.append(np.asarray(st.v)[top, 0].mean())
+
+    top = np.asarray(build(cfg).state.x)[:, 1] > 0.8 * INCLINE_H
+    s, final, _, _ = _run_frames(cfg, rec, each=plug)
+    if _failed(rec, final, s.scene.n_particles):
+        return
+    u, exact = float(np.mean(speeds)), incline_plug_speed()
+    rec.update(reference=exact, measured=u, unit="m/s")
+    rec["checks"] = [_check("plug speed vs the Bingham film", u, exact, rec["tolerance"])]
 
 
 # --------------------------------------------------------------------------------------
@@ -568,6 +633,18 @@ CASES: dict[str, Case] = {
             "2 % of the plug speed: the plug target of tests/test_rheology_mpm.py (GIMP +0.6 % at H/h = 10)",
             *(_poiseuille(True)),
             "loop CPU measured on 2 shared cores (explicit / incompressible): 1.2 s / 0.7 s (incompressible failed)",
+        ),
+        Case(
+            "bingham-incline",
+            "a Bingham layer 0.1 m deep on a 30-degree no-slip incline (periodic), tau_y = tau_b / 1.1, mu 20 Pa s, "
+            "20 cells across the depth (the sheared layer 1.8 cells), 1 s",
+            "the film's plug speed rho g sin(theta) delta^2 / (2 mu), delta = H (1 - tau_y / tau_b)",
+            0.05,
+            "5 %: the arrest regime, where a grid with one strain rate per cell row is off by -1 % here (+0.3 % "
+            "measured explicit) and a soft Maxwell modulus by tens of per cent (docs/incompressible.md)",
+            _incline_cfgs,
+            _incline_run,
+            "loop CPU measured on 2 shared cores (explicit / incompressible): 1.0 s / 0.4 s (11 490 / 2 420 steps)",
         ),
         Case(
             "water-ritter",
