@@ -14,6 +14,7 @@ import pytest
 
 from mpmjax import build, validate
 from mpmjax._simulate import run
+from mpmjax.studies.validate import incline_config, incline_plug_speed, incline_top
 
 RHO, G, H = 1000.0, 9.81, 0.1
 
@@ -205,27 +206,16 @@ def test_bad_terrain_is_a_scene_error():
 
 
 def _near_yield_plug_speed(cells: int, r: float) -> tuple[float, float]:
-    """A Bingham layer H = 0.1 m on a 30-degree no-slip incline with tau_y = tau_b / r, at ``cells``
-    across H: (plug speed averaged over the last 0.3 s of 1 s [m/s], exact film speed [m/s]).  The
-    Maxwell modulus is pinned stiff (200 kPa, the explicit default's G = kappa) so that the bed, not
-    the modulus, is under test (docs/incompressible.md, "At the yield limit")."""
-    h, mu, th = H / cells, 20.0, 30.0
-    s_th = math.sin(math.radians(th))
-    raw = {
-        "domain": {"lo_m": [0.0, 0.0], "hi_m": [4 * h, H + 5 * h], "cell_size_m": h},
-        "boundary": {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "slip"},
-        "numerics": {"ppc": 2, "dtype": "float64", "maxwell_shear_modulus_pa": 2e5},
-        "time": {"t_end_s": 1.0, "n_frames": 10},
-        "material": {"density_kg_m3": RHO, "bulk_modulus_pa": 2e5, **_bingham(RHO * G * H * s_th / r, mu)},
-        "gravity": {"g_m_s2": G, "slope_deg": th},
-        "bodies": [{"type": "box", "lo_m": [0.0, 0.0], "hi_m": [4 * h, H]}],
-    }
-    s = build(validate(raw))
+    """The validation suite's Bingham layer on a 30-degree no-slip incline (H = 0.1 m, tau_y = tau_b / r;
+    ``mpmjax.studies.validate.incline_config``) at ``cells`` across H: (plug speed averaged over the last
+    0.3 s of 1 s [m/s], exact film speed [m/s]).  float64, and the Maxwell modulus pinned stiff (200 kPa,
+    the explicit default's G = kappa) so that the bed, not the modulus, is under test
+    (docs/incompressible.md, "At the yield limit")."""
+    cfg = incline_config(cells, r, 1.0, {"numerics.dtype": "float64", "numerics.maxwell_shear_modulus_pa": 2e5})
+    s = build(cfg)
     _, frames = run(s.scene, s.state, s.params)
-    top = np.asarray(s.state.x)[:, 1] > 0.8 * H
-    u = float(np.asarray(frames.v)[-3:, :, 0][:, top].mean())
-    delta = H * (1.0 - 1.0 / r)
-    return u, RHO * G * s_th * delta**2 / (2.0 * mu)
+    u = float(np.asarray(frames.v)[-3:, :, 0][:, incline_top(s)].mean())
+    return u, incline_plug_speed(r)
 
 
 def test_the_bed_samples_the_yield_stress_half_a_cell_above_it():

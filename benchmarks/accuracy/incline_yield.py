@@ -1,10 +1,11 @@
 """Where the no-slip bed samples the yield criterion (issue 31, item 2): a Bingham layer on an incline
 near its yield limit, against the exact film flow and against the cell-centred prediction.
 
-An infinite layer (periodic along the slope, 4 cells long), depth H = 0.1 m, slope 30 degrees,
+The validation suite's layer (``mpmjax.studies.validate.incline_config``, ``incline_plug_speed``):
+an infinite layer (periodic along the slope, 4 cells long), depth H = 0.1 m, slope 30 degrees,
 rho = 1000 kg/m^3, plastic viscosity 20 Pa s (Papanastasiou m = 1000 s), no-slip bed, free surface.
 The bed stress is tau_b = rho g H sin(theta); tau_y = tau_b / r for r = tau_b / tau_y.  Exact steady
-plug speed (REFERENCE.md, film flow): u = rho g sin(theta) (H - h_p)^2 / (2 mu), h_p = tau_y / (rho g
+plug speed (the layer's momentum balance): u = rho g sin(theta) (H - h_p)^2 / (2 mu), h_p = tau_y / (rho g
 sin(theta)), so the sheared layer is delta = H (1 - 1/r) thick.
 
 The cell-centred prediction is what a grid whose strain rate is one value per cell gives at steady
@@ -22,23 +23,26 @@ each, steps and CPU.
 """
 
 import json
-import math
 import sys
 import time
 
 import numpy as np
 
-from mpmjax import build, validate
+from mpmjax import build
 from mpmjax._simulate import run
+from mpmjax.studies.validate import (
+    INCLINE_H as H,
+    INCLINE_MU as MU,
+    INCLINE_SLOPE as SLOPE,
+    RHO,
+    G,
+    incline_config,
+    incline_plug_speed,
+    incline_top,
+)
 
-RHO, G, H, MU, SLOPE = 1000.0, 9.81, 0.1, 20.0, 30.0
 T_END, T_AVG = 1.0, 0.3
-S = math.sin(math.radians(SLOPE))
-
-
-def exact_speed(r: float) -> float:
-    delta = H * (1.0 - 1.0 / r)
-    return RHO * G * S * max(delta, 0.0) ** 2 / (2.0 * MU)
+S = float(np.sin(np.radians(SLOPE)))
 
 
 def cell_centred_speed(r: float, cells: int) -> float:
@@ -51,34 +55,15 @@ def cell_centred_speed(r: float, cells: int) -> float:
 
 def measure(r: float, cells: int, pressure: str, numerics: dict | None = None) -> dict:
     h = H / cells
-    tau_y = RHO * G * H * S / r
-    n_frames = 10
-    raw = {
-        "domain": {"lo_m": [0.0, 0.0], "hi_m": [4 * h, H + 5 * h], "cell_size_m": h},
-        "boundary": {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "slip"},
-        "numerics": {"ppc": 2, "dtype": "float64", "pressure": pressure, **(numerics or {})},
-        "time": {"t_end_s": T_END, "n_frames": n_frames},
-        "material": {
-            "model": "bingham",
-            "density_kg_m3": RHO,
-            "bulk_modulus_pa": 2e5,
-            "viscosity_pa_s": MU,
-            "yield_stress_pa": tau_y,
-            "papanastasiou_m_s": 1000.0,
-        },
-        "gravity": {"g_m_s2": G, "slope_deg": SLOPE},
-        "bodies": [{"type": "box", "lo_m": [0.0, 0.0], "hi_m": [4 * h, H]}],
-    }
-    s = build(validate(raw))
+    base = {"numerics.dtype": "float64", "numerics.pressure": pressure}
+    base.update({f"numerics.{k}": v for k, v in (numerics or {}).items()})
+    s = build(incline_config(cells, r, T_END, base))
     c0 = time.process_time()
     final, frames = run(s.scene, s.state, s.params)
     cpu = time.process_time() - c0
-    x0 = np.asarray(s.state.x)
-    top = x0[:, 1] > 0.8 * H
-    keep = int(round(T_AVG / T_END * n_frames))
-    v = np.asarray(frames.v)[-keep:, :, 0][:, top]  # (frames, top particles)
-    u = float(v.mean())
-    ex, cc = exact_speed(r), cell_centred_speed(r, cells)
+    keep = int(round(T_AVG / T_END * s.scene.n_frames))
+    u = float(np.asarray(frames.v)[-keep:, :, 0][:, incline_top(s)].mean())
+    ex, cc = incline_plug_speed(r), cell_centred_speed(r, cells)
     return {
         "r": r,
         "cells": cells,

@@ -76,8 +76,8 @@ def _failed(rec: dict, final, n_particles: int) -> bool:
 
 def _run_frames(cfg: dict, rec: dict, params_fn: Callable | None = None, each: Callable | None = None):
     """Run a validated scene frame by frame with one compiled frame advance; adds the loop's CPU
-    and wall time (compile excluded) and the step count to ``rec``; ``each(state)`` is called after
-    every frame.  Returns (setup, final state, [front at the end of every frame] [m], [frame end
+    and wall time (compile excluded) and the step count to ``rec``; ``each(setup, state)`` is called
+    after every frame.  Returns (setup, final state, [front at the end of every frame] [m], [frame end
     times] [s])."""
     s = build(cfg)
     sc = s.scene
@@ -98,7 +98,7 @@ def _run_frames(cfg: dict, rec: dict, params_fn: Callable | None = None, each: C
         fronts.append(gauge.front(np.asarray(st.x), np.asarray(st.vol0), np.asarray(st.active, bool)))
         times.append(float(st.t))
         if each is not None:
-            each(st)
+            each(s, st)
     rec["cpu_s"] = rec.get("cpu_s", 0.0) + cpu
     rec["wall_s"] = rec.get("wall_s", 0.0) + wall
     rec["n_steps"] = rec.get("n_steps", 0) + int(sc.n_steps)
@@ -310,21 +310,22 @@ INCLINE_SIZE = {"full": {"cells": 20, "t_end": 1.0}, "ci": {"cells": 5, "t_end":
 INCLINE_AVERAGE_S = 0.3  # the plug speed is averaged over the frames of the run's last 0.3 s
 
 
-def _incline_cfgs(size, base):
-    """A layer INCLINE_H deep, periodic along the slope (4 cells), no-slip bed, free surface, with
-    tau_y = tau_b / INCLINE_R: the sheared layer delta = H (1 - 1/r) = 9.1 mm is 1.8 cells at the full
-    size, the regime where a deposit arrests (docs/incompressible.md, "At the yield limit")."""
-    h = INCLINE_H / INCLINE_SIZE[size]["cells"]
+def incline_config(cells: int, r: float, t_end: float, base: dict) -> dict:
+    """A Bingham layer INCLINE_H deep on an INCLINE_SLOPE no-slip incline, periodic along it (4 cells),
+    free surface, ``cells`` across its depth, tau_y = tau_b / ``r`` (tau_b = rho g H sin(theta), the bed
+    stress), 10 frames to ``t_end`` [s]; ``base``: flat ``section.key`` overrides.  The validated config.
+    At r = INCLINE_R the sheared layer delta = H (1 - 1/r) = 9.1 mm is 1.8 cells at the full size, the
+    regime where a deposit arrests (docs/incompressible.md, "At the yield limit")."""
+    h = INCLINE_H / cells
     tau_b = RHO * G * INCLINE_H * math.sin(math.radians(INCLINE_SLOPE))
     mat = {
         "model": "bingham",
         "density_kg_m3": RHO,
         "bulk_modulus_pa": 2e5,
         "viscosity_pa_s": INCLINE_MU,
-        "yield_stress_pa": tau_b / INCLINE_R,
+        "yield_stress_pa": tau_b / r,
         "papanastasiou_m_s": 1000.0,
     }
-    t_end = INCLINE_SIZE[size]["t_end"]
     raw = {
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [4 * h, INCLINE_H + 5 * h], "cell_size_m": h},
         "boundary": {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "slip"},
@@ -334,15 +335,24 @@ def _incline_cfgs(size, base):
         "gravity": {"g_m_s2": G, "slope_deg": INCLINE_SLOPE},
         "bodies": [{"lo_m": [0.0, 0.0], "hi_m": [4 * h, INCLINE_H]}],
     }
-    return [validate(_nested(raw, base))]
+    return validate(_nested(raw, base))
 
 
-def incline_plug_speed() -> float:
-    """Steady plug speed [m/s] of the Bingham film: rho g sin(theta) delta^2 / (2 mu), delta = H (1 - 1/r)
-    the sheared layer under the plug h_p = tau_y / (rho g sin(theta)) (the layer's momentum balance:
-    tau = rho g sin(theta) (H - y), yielding below y = delta)."""
-    delta = INCLINE_H * (1.0 - 1.0 / INCLINE_R)
+def incline_plug_speed(r: float) -> float:
+    """Steady plug speed [m/s] of the Bingham film at r = tau_b / tau_y: rho g sin(theta) delta^2 / (2 mu),
+    delta = H (1 - 1/r) the sheared layer under the plug h_p = tau_y / (rho g sin(theta)) (the layer's
+    momentum balance: tau = rho g sin(theta) (H - y), yielding below y = delta; 0 for r <= 1)."""
+    delta = max(INCLINE_H * (1.0 - 1.0 / r), 0.0)
     return RHO * G * math.sin(math.radians(INCLINE_SLOPE)) * delta**2 / (2.0 * INCLINE_MU)
+
+
+def incline_top(setup) -> np.ndarray:
+    """The particles that start in the top fifth of the layer (inside the plug): a bool mask."""
+    return np.asarray(setup.state.x)[:, 1] > 0.8 * INCLINE_H
+
+
+def _incline_cfgs(size, base):
+    return [incline_config(INCLINE_SIZE[size]["cells"], INCLINE_R, INCLINE_SIZE[size]["t_end"], base)]
 
 
 def _incline_run(size, base, rec):
@@ -350,15 +360,14 @@ def _incline_run(size, base, rec):
     t_end = INCLINE_SIZE[size]["t_end"]
     speeds = []
 
-    def plug(st):  # the top fifth of the layer's particles (initially), inside the plug
+    def plug(s, st):
         if float(st.t) >= t_end - INCLINE_AVERAGE_S - 1e-9:
-            speeds.append(np.asarray(st.v)[top, 0].mean())
+            speeds.append(np.asarray(st.v)[incline_top(s), 0].mean())
 
-    top = np.asarray(build(cfg).state.x)[:, 1] > 0.8 * INCLINE_H
     s, final, _, _ = _run_frames(cfg, rec, each=plug)
     if _failed(rec, final, s.scene.n_particles):
         return
-    u, exact = float(np.mean(speeds)), incline_plug_speed()
+    u, exact = float(np.mean(speeds)), incline_plug_speed(INCLINE_R)
     rec.update(reference=exact, measured=u, unit="m/s")
     rec["checks"] = [_check("plug speed vs the Bingham film", u, exact, rec["tolerance"])]
 
