@@ -187,7 +187,7 @@ def pipe_nodes(scene: Scene) -> np.ndarray:
     return (along <= tol) & (along >= -inf.pipe_length - tol) & (lateral <= half + tol)
 
 
-def node_fill(scene: Scene) -> np.ndarray:
+def node_fill(scene: Scene, ghosts: bool = False) -> np.ndarray:
     """Per node, the packing fraction phi it would measure with the whole domain filled at the
     seeding lattice (spacing 2 lp_cells cells, half a spacing off each wall): 1 in the interior,
     less where the kernel reaches through a wall.  phi = (1 - sum over the lattice sites beyond
@@ -196,6 +196,9 @@ def node_fill(scene: Scene) -> np.ndarray:
     under the node (its height and normal there), so that the cells a height map cuts read the
     packing of the material above it, not a low one.  With the boundary-modified B-splines the box
     walls are counted exactly instead (``_fill_box_walls``), the extra planes as above.
+    ``ghosts=True``: the box walls counted exactly for every shape, so that a node behind a box wall
+    gets the fill a filled domain gives it (the formula above holds in front of a wall only);
+    ``_pressure`` lumps those nodes onto their mirror images.
     """
     xn = scene.node_positions()
     sp = 2.0 * scene.lp_cells
@@ -203,7 +206,7 @@ def node_fill(scene: Scene) -> np.ndarray:
     s_k = (np.arange(int(np.ceil(reach / sp)) + 1) + 0.5) * sp  # sites beyond the wall, cells
     fill = np.ones(len(xn))
     walls = scene.walls
-    if scene.shape in _shapes.BOUNDARY_MODIFIED:
+    if scene.shape in _shapes.BOUNDARY_MODIFIED or ghosts:
         fill, walls = _fill_box_walls(scene, xn, sp, reach), _other_walls(scene)
     def beyond(d):
         """The fill a plane at signed distance ``d`` [cells] (positive inside) leaves a node."""
