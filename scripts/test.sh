@@ -11,6 +11,16 @@ bash scripts/setup.sh || exit 1
 # tests compiling through XLA:CPU's older fusion emitters (tests/conftest.py): 490 tests in 15.3 min
 # (917 s); the slowest tests are listed in docs/performance.md, "Test suite".
 # worksteal evens out the long tests.
+# One persistent XLA compilation cache per run, shared by the workers and the CLI subprocesses the
+# tests start (tests compile some programs more than once: the same coarse scene in several CLI
+# tests, one calibration program in several fits).  Fresh and removed at the end, so that CI's
+# figure is a cold run's; a developer who sets JAX_COMPILATION_CACHE_DIR keeps theirs.
+if [ -z "${JAX_COMPILATION_CACHE_DIR:-}" ]; then
+  cache_dir=$(mktemp -d "${TMPDIR:-/tmp}/mpmjax-xla-cache.XXXXXX") || exit 1
+  trap 'rm -rf "$cache_dir"' EXIT
+  export JAX_COMPILATION_CACHE_DIR="$cache_dir"
+fi
+export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="${JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS:-0.2}"
 .venv/bin/python -m pytest -q -n "${MPMJAX_TEST_WORKERS:-auto}" --dist worksteal "$@"
 rc=$?
 if [ "$rc" -eq 5 ]; then
