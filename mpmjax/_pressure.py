@@ -373,7 +373,6 @@ def make_projection(
         out = jnp.stack([c.reshape(-1) for c in comps], axis=-1)
         return out if mirror is None else out[mirror]
 
-    mirror_lump = None if mirror is None else jnp.asarray(mirror)
 
     def lumped_mass(mass, inside, dtp):
         """E^T m, E the extension (``extend``, linear in the velocity): each node's mass plus the shares of the
@@ -384,7 +383,9 @@ def make_projection(
         lumps the nodes behind box walls onto their mirror images first (a scatter-add by the static map), then
         each ring's new node onto its inside face neighbours, 1/cnt each (written out: ``jax.linear_transpose``
         refuses ``extend``, whose stacked weights are not linear in the velocity)."""
-        m = mass if mirror_lump is None else jnp.zeros_like(mass).at[mirror_lump].add(mass)
+        # (the static map stays a numpy array: a jax array made here would be a captured constant, which kept
+        # jax.jit of a run off its fast path, tests/test_engine.py::test_second_call_does_not_recompile)
+        m = mass if mirror is None else jnp.zeros_like(mass).at[mirror].add(mass)
         m = m.reshape(shape)
         rings = []
         for _ in range(EXTEND_LAYERS):
