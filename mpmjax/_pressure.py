@@ -287,7 +287,8 @@ def make_projection(
 
     fill_c = _np_corner_sum(np.asarray(fill, float).reshape(shape), signs)  # static
     # the pressure's nodal force integrates over the valid cells with the bilinear functions, the node's mass
-    # comes from the MPM kernel: the solve uses m q1 / fill (module docstring, "Near walls and the free surface")
+    # comes from the MPM kernel: the solve uses the lumped mass times q1 / fill_l (below; module docstring, "Near
+    # walls and the free surface")
     q1 = sum(np.roll(valid.astype(float), tuple(int(x) for x in sg), axis=tuple(range(dim))) for sg in signs)
     q1 = q1 / len(signs)
     # behind a box wall, a node takes its mirror image's value (static): (the wall node) + (the wall node - node)
@@ -355,46 +356,44 @@ def make_projection(
         r = coef**2 * sum(float(2 * s1[a] - 1) * at(wn[a], s1) for s1 in signs for a in range(dim))
         return {o: jnp.where(fluid & at(fluid, o), c, 0.0) for o, c in C.items()}, jnp.where(fluid, r + reg, 0.0)
 
-    def extend(comps, inside, dtp):
-        """Nodal components (dim arrays of grid_shape) -> (N, dim), carried from the ``inside`` nodes to the
-        nodes next to them (``EXTEND_LAYERS`` rings; each new node takes the mean of its inside face
-        neighbours), then to the nodes behind box walls from their mirror images (a static gather).  The
-        components and the weight travel as one stacked array, one shift per neighbour."""
-        n = len(comps)
+    def rings(inside, dtp):
+        """The extension's ``EXTEND_LAYERS`` rings out from the ``inside`` nodes: per ring (the nodes inside so
+        far, the ring's new nodes, each node's count of inside face neighbours).  Formed once a step, for
+        ``extend`` and its transpose ``lumped_mass``."""
+        out = []
         for _ in range(EXTEND_LAYERS):
-            w = inside.astype(dtp)
-            stacked = jnp.stack([w * c for c in comps] + [w])
-            acc = sum(_roll_lead(stacked, sh_, a) for a in range(dim) for sh_ in (-1, 1))
-            cnt = acc[n]
+            cnt = sum(_roll(inside.astype(dtp), sh_, a) for a in range(dim) for sh_ in (-1, 1))
             new = ~inside & (cnt > 0.0)
-            safe = jnp.where(cnt > 0.0, cnt, 1.0)
-            comps = [jnp.where(new, acc[k] / safe, c) for k, c in enumerate(comps)]
+            out.append((inside, new, jnp.where(new, cnt, 1.0)))
             inside = inside | new
+        return out
+
+    def extend(comps, ring_list, dtp):
+        """Nodal components (dim arrays of grid_shape) -> (N, dim), carried from the inside nodes to the
+        nodes next to them (``rings``: each new node takes the mean of its inside face neighbours), then to
+        the nodes behind box walls from their mirror images (a static gather).  The components travel as one
+        stacked array, one shift per neighbour."""
+        for inside, new, cnt in ring_list:
+            stacked = jnp.stack([inside.astype(dtp) * c for c in comps])
+            acc = sum(_roll_lead(stacked, sh_, a) for a in range(dim) for sh_ in (-1, 1))
+            comps = [jnp.where(new, acc[k] / cnt, c) for k, c in enumerate(comps)]
         out = jnp.stack([c.reshape(-1) for c in comps], axis=-1)
         return out if mirror is None else out[mirror]
 
-
-    def lumped_mass(mass, inside, dtp):
+    def lumped_mass(mass, ring_list):
         """E^T m, E the extension (``extend``, linear in the velocity): each node's mass plus the shares of the
         nodes that take their velocity change from it.  The pressure's force F moves that mass as one, so the
         momentum it adds is sum_i M_i dv_i = sum_i F_i, the force's own (the walls' reaction, nothing where there
         is no wall): with the particles' mass m alone, the extension added sum_j m_j (E dv)_j on top (a block
         sliding on a slip floor gained 0.07 % of its momentum every 0.05 s).  E = (mirror) (rings), so E^T
         lumps the nodes behind box walls onto their mirror images first (a scatter-add by the static map), then
-        each ring's new node onto its inside face neighbours, 1/cnt each (written out: ``jax.linear_transpose``
-        refuses ``extend``, whose stacked weights are not linear in the velocity)."""
-        # (the static map stays a numpy array: a jax array made here would be a captured constant, which kept
-        # jax.jit of a run off its fast path, tests/test_engine.py::test_second_call_does_not_recompile)
+        each ring's new node onto its inside face neighbours, 1/cnt each, the last ring first.  The static
+        map stays a numpy array: a jax array made here would be a captured constant, which kept jax.jit of a
+        run off its fast path (tests/test_engine.py::test_second_call_does_not_recompile)."""
         m = mass if mirror is None else jnp.zeros_like(mass).at[mirror].add(mass)
         m = m.reshape(shape)
-        rings = []
-        for _ in range(EXTEND_LAYERS):
-            cnt = sum(_roll(inside.astype(dtp), sh_, a) for a in range(dim) for sh_ in (-1, 1))
-            new = ~inside & (cnt > 0.0)
-            rings.append((inside, new, cnt))
-            inside = inside | new
-        for inside, new, cnt in reversed(rings):
-            share = jnp.where(new, m / jnp.where(new, cnt, 1.0), 0.0)
+        for inside, new, cnt in reversed(ring_list):
+            share = jnp.where(new, m / cnt, 0.0)
             acc = sum(_roll(share, sh_, a) for a in range(dim) for sh_ in (-1, 1))
             m = jnp.where(inside, m + acc, jnp.where(new, 0.0, m))
         return m
@@ -407,8 +406,9 @@ def make_projection(
         phi = corner_sum(mass.reshape(shape)) / (rho * vol_c * jnp.asarray(np.maximum(fill_c, 1e-12), dtp))
         fluid = jnp.asarray(valid) & (phi >= FLUID_FRACTION)
         inside = corner_nodes(fluid)
+        ring_list = rings(inside, dtp)
         # the mass the pressure moves: the node's own and that of the nodes it carries its velocity change to
-        m_l = lumped_mass(jnp.where(has, mass, 0.0), inside, dtp)
+        m_l = lumped_mass(jnp.where(has, mass, 0.0), ring_list)
         m_g = jnp.where(inside & (m_l > 0.0), 1.0 / jnp.where(m_l > 0.0, m_l, 1.0), inv_m.reshape(shape))
         if not ratio_is_one:
             m_g = m_g * jnp.asarray(mass_ratio, dtp)
@@ -511,7 +511,7 @@ def make_projection(
                 due = jnp.round(t / scene.dt).astype(jnp.int32) % POSITION_EVERY == 0
                 q = jax.lax.cond(due, lambda r: solve(r, jnp.zeros_like(r)), jnp.zeros_like, b_x)
         p = jnp.where(fluid, p, 0.0)
-        dv = extend(S(grad(p)) if constrained else [m_g * c for c in grad(p)], inside, dtp)
+        dv = extend(S(grad(p)) if constrained else [m_g * c for c in grad(p)], ring_list, dtp)
         if constrained and mirror is not None:  # a mirror image's normal component is no wall's
             dv = linear_conditions(dv)
         v = v_star + scene.dt * dv
@@ -519,7 +519,7 @@ def make_projection(
         if q is None:
             return v, p, None, (A, b)
         # the walls' conditions on the displacement too (a mirror image behind a no-slip wall is no displacement)
-        d = linear_conditions(extend(S(grad(jnp.where(fluid, q, 0.0))), inside, dtp))
+        d = linear_conditions(extend(S(grad(jnp.where(fluid, q, 0.0))), ring_list, dtp))
         return v, p, jnp.where(has[:, None], d, 0.0), (A, b)
 
     return project
