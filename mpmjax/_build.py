@@ -578,6 +578,12 @@ STEPS_WARN = 1_000_000  # warn when a run needs more steps than this
 # half of what the 2-core CPU VM measured (docs/performance.md: 2D 1-2.9 M, 3D 0.12-0.6 M)
 EST_RATE = {2: 1.0e6, 3: 1.0e5}
 EST_STEP_S = 2e-4  # and at least this per step (small runs: the per-step overhead, ~2000 steps/s)
+# the particles' pressure (numerics.pressure = "explicit") locks a yield-stress or thixotropic material as its
+# hydrostatic strain rho g H / kappa falls: warn below this.  Measured (docs/validation.md, "Incompressible
+# limit"): dambreak-lab 1.282 / 1.175 / 0.647 m at 24 / 2.4 / 0.24 %; bingham-dambreak (h = 1 cm) 1.240 / 1.184 /
+# 0.732 m at 5 / 0.5 / 0.05 %, and 1.315 m with the grid pressure.  The Newtonian Cruchaga columns move by at most
+# 0.6 % over the same range (κ / 10 to κ x 10), so a Newtonian material is not warned about
+LOCKING_STRAIN = 0.05
 
 
 def estimate_run_time_s(n_particles: int, n_steps: int, dim: int) -> float:
@@ -612,7 +618,10 @@ def start_warnings(setup: Setup) -> list[str]:
     * a run of more than ``STEPS_WARN`` steps, naming what sets the step (the bulk modulus for a
       wave-speed limit), with the estimated run time (``estimate_run_time_s``);
     * a body that starts partly below the terrain surface (``bodies_below_terrain``; wholly
-      below is an error)."""
+      below is an error);
+    * a non-Newtonian material under the particles' pressure whose hydrostatic strain rho g H / kappa
+      is below ``LOCKING_STRAIN`` (H its depth along gravity at the start): there the runout depends on
+      material.bulk_modulus_pa (volumetric locking), which the grid pressure removes."""
     cfg, sc, info = setup.cfg, setup.scene, setup.info
     h, dim = sc.h, sc.dim
     out = list(info.get("bodies_below_terrain", []))  # bodies partly below the terrain (bodies_below_terrain)
@@ -643,6 +652,9 @@ def start_warnings(setup: Setup) -> list[str]:
                 f"a body so thin is under-resolved (its runout and profile depend on the grid): set "
                 f"domain.cell_size_m <= {least / BODY_CELLS_MIN:.3g} m, or make the body thicker"
             )
+    locking = _locking_warning(setup)
+    if locking:
+        out.append(locking)
     dt_req = float(cfg["numerics.dt_s"])
     dt_target = dt_req if dt_req > 0 else float(info["dt_limit_s"])
     what = f"numerics.dt_s = {dt_req:g} s" if dt_req > 0 else f"the stable time step {dt_target:.3g} s"
@@ -684,12 +696,13 @@ def start_warnings(setup: Setup) -> list[str]:
                 f"h = domain.cell_size_m = {h:g} m)"
             )
             k_soft = rho * (10.0 * v) ** 2  # Mach 0.1 at the velocity scale (docs/scenarios.md)
-            fix = (
-                f"lower material.bulk_modulus_pa towards rho (10 v)^2 = {k_soft:.3g} Pa (Mach 0.1 at the velocity "
-                f"scale v = {v:.3g} m/s, weakly compressible; docs/scenarios.md), "
-                if k_soft < kappa and v > 0 and c > 10.0 * v
-                else ""
-            )
+            fix = 'set numerics.pressure = "incompressible" (the step then follows the flow speed; kappa does not enter), '
+            if k_soft < kappa and v > 0 and c > 10.0 * v:
+                fix += (
+                    f"lower material.bulk_modulus_pa towards rho (10 v)^2 = {k_soft:.3g} Pa (Mach 0.1 at the velocity "
+                    f"scale v = {v:.3g} m/s, weakly compressible; docs/scenarios.md; a yield-stress material locks "
+                    "there, see the warning on its hydrostatic strain), "
+                )
         else:
             cause = (
                 f"the viscous limit dt = {info['dt_viscous_s']:.3g} s sets the step (mu_max = "
@@ -702,3 +715,30 @@ def start_warnings(setup: Setup) -> list[str]:
             f"{fix}raise domain.cell_size_m, or shorten time.t_end_s"
         )
     return out
+
+
+def _locking_warning(setup: Setup) -> str | None:
+    """The ``LOCKING_STRAIN`` warning of ``start_warnings``, or None."""
+    cfg, sc = setup.cfg, setup.scene
+    if sc.pressure != "explicit" or sc.formulation == "depth-averaged" or cfg["material.model"] == "newtonian":
+        return None
+    g = np.asarray(setup.params.gravity, float)
+    gn = float(np.linalg.norm(g))
+    act = np.asarray(setup.state.active)
+    if gn == 0.0 or not act.any():
+        return None
+    up = np.asarray(setup.state.x, float)[act] @ (-g / gn)
+    depth = float(up.max() - up.min()) + sc.h / cfg["numerics.ppc"]  # particle centres + half a spacing each end
+    rho, kappa = float(setup.params.material.rho), float(setup.params.material.kappa)
+    strain = rho * gn * depth / kappa
+    if strain >= LOCKING_STRAIN:
+        return None
+    return (
+        f"material.bulk_modulus_pa = {kappa:.4g} Pa with numerics.pressure = \"explicit\": the material's "
+        f"hydrostatic strain rho g H / kappa is {100 * strain:.2g} % (H = {depth:.4g} m, its depth along gravity), "
+        f"below {100 * LOCKING_STRAIN:g} %, where the particles' pressure locks a yield-stress or thixotropic material "
+        "and the runout depends on kappa (dambreak-lab: 1.282 m at 24 %, 0.647 m at 0.24 %; docs/validation.md, "
+        '"Incompressible limit"): set numerics.pressure = "incompressible" (the pressure solved on the grid; kappa '
+        f"does not enter), or lower material.bulk_modulus_pa to {rho * gn * depth / LOCKING_STRAIN:.3g} Pa or less "
+        "(weakly compressible)"
+    )

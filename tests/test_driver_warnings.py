@@ -54,7 +54,9 @@ def test_n_frames_forcing_a_small_step_says_so_with_the_run_time():
 
 def test_stiff_bulk_modulus_needing_over_a_million_steps():
     setup, w = _warnings("domain.cell_size_m=0.02", "material.bulk_modulus_pa=1e12", "numerics.pressure=explicit")
-    (msg,) = w
+    locking, msg = w  # the hydrostatic strain's warning comes first (test below)
+    assert locking.startswith("material.bulk_modulus_pa = 1e+12 Pa with numerics.pressure")
+    assert 'set numerics.pressure = "incompressible"' in msg
     assert setup.scene.n_steps > STEPS_WARN
     assert msg.startswith(f"the run needs {setup.scene.n_steps} steps")
     assert "material.bulk_modulus_pa = 1e+12 Pa sets the step" in msg
@@ -80,3 +82,23 @@ def test_run_prints_and_records_the_warnings(tmp_path, capsys):
     # it names the cheapest measured remedy, uniform refinement (docs/validation.md "Depth resolution")
     assert "set domain.cell_size_m <=" in doc["warnings"][-1] and "Depth resolution" in doc["warnings"][-1]
     assert f"warning: {doc['warnings'][-1]}" in err
+
+
+def test_a_yield_stress_material_under_the_particles_pressure_is_warned_where_it_locks():
+    """The default scene's runout is 1.282 m at kappa = 15 kPa (rho g H / kappa = 24 %) and 0.647 m at 1.5 MPa
+    (0.24 %): below ``LOCKING_STRAIN`` (5 %) the warning names the key, the strain, the depth it used and both
+    remedies, with the modulus that reaches 5 %.  The grid pressure, a Newtonian material (the Cruchaga columns
+    move by at most 0.6 % over kappa / 10 to kappa x 10) and the default scene are not warned about."""
+    explicit = "numerics.pressure=explicit"
+    _, w = _warnings("domain.cell_size_m=0.02", "material.bulk_modulus_pa=1.5e6", explicit)
+    (msg,) = w
+    strain = 1850 * 9.81 * 0.2 / 1.5e6
+    assert msg.startswith("material.bulk_modulus_pa = 1.5e+06 Pa with numerics.pressure = \"explicit\"")
+    assert f"rho g H / kappa is {100 * strain:.2g} % (H = 0.2 m" in msg and "below 5 %" in msg
+    assert 'set numerics.pressure = "incompressible"' in msg
+    assert f"lower material.bulk_modulus_pa to {1850 * 9.81 * 0.2 / 0.05:.3g} Pa or less" in msg
+    # at that modulus the warning stops (5 % is the line); the grid pressure never gets it
+    assert _warnings("domain.cell_size_m=0.02", f"material.bulk_modulus_pa={1850 * 9.81 * 0.2 / 0.051}", explicit)[1] == []
+    assert _warnings("domain.cell_size_m=0.02", "material.bulk_modulus_pa=1.5e6", "numerics.pressure=incompressible")[1] == []
+    water = m.build(m.load_scene("dambreak-water", ["domain.cell_size_m=0.02", "time.t_end_s=0.1"]))
+    assert 1000 * 9.81 * 0.114 / 225e3 < 0.05 and start_warnings(water) == []
