@@ -302,6 +302,13 @@ def make_projection(
         idx[a] = np.clip(idx[a], 0, shape[a] - 1)
     mirror = np.ravel_multi_index(tuple(idx), shape).reshape(-1)
     mirror = None if np.array_equal(mirror, np.arange(mirror.size)) else mirror
+    # a cell whose every corner node the walls' conditions hold (Q = 0: no-slip nodes, a pipe's prescribed
+    # velocity) has A's row and column zero: the pressure cannot move it.  As an unknown with a right-hand side (its
+    # packing's excess, say) it breaks CG down: r there never falls and M r = 0, so r.z = 0 and the next step is
+    # 0 / 0 (flume-deposition with the grid pressure: every particle NaN at t = 312.5 s, the pipe's cell against
+    # the no-slip bed).  Such cells are no unknowns; for the free surface and the deep cells they count as walls
+    q_zero = np.all(Q.reshape(shape + (dim * dim,)) == 0.0, axis=-1).astype(float)
+    solved = valid & (_np_corner_sum(q_zero, signs) < len(signs))  # static
     # the nodes behind a box wall move with their mirror images, so their mass is lumped onto them (the extension's
     # transpose, below): a filled domain's lumped fill, set against q1.  For a symmetric kernel (GIMP, the quadratic
     # and cubic B-splines) the mirror lumping makes it q1 exactly (the quadratic B-spline's 47/48 + 1/48 = 1); the
@@ -404,7 +411,7 @@ def make_projection(
         rho = mat.rho
         # packing per cell and the fluid cells
         phi = corner_sum(mass.reshape(shape)) / (rho * vol_c * jnp.asarray(np.maximum(fill_c, 1e-12), dtp))
-        fluid = jnp.asarray(valid) & (phi >= FLUID_FRACTION)
+        fluid = jnp.asarray(solved) & (phi >= FLUID_FRACTION)
         inside = corner_nodes(fluid)
         ring_list = rings(inside, dtp)
         # the mass the pressure moves: the node's own and that of the nodes it carries its velocity change to
@@ -436,7 +443,7 @@ def make_projection(
             # correcting only the overpacking is a ratchet that leaves the particles spread (step 4)
             err = phi - 1.0
             err = jnp.sign(err) * jnp.maximum(jnp.abs(err) - PACKING_DEAD_BAND, 0.0)
-            excess = jnp.where(deep_cells(fluid, valid, scene.periodic), err, excess)
+            excess = jnp.where(deep_cells(fluid, solved, scene.periodic), err, excess)
         excess = rate * excess
         b = jnp.where(fluid, (vol_c * excess / scene.dt - div(vs)) / scene.dt, 0.0)
         # no free surface anywhere (a full closed box): the volume can only be kept, not corrected, so the
@@ -444,7 +451,7 @@ def make_projection(
         surface = jnp.zeros_like(fluid)
         for a in range(dim):
             for sh in (-1, 1):
-                surface = surface | (fluid & ~_roll(fluid, sh, a) & jnp.asarray(np.roll(valid, sh, axis=a)))
+                surface = surface | (fluid & ~_roll(fluid, sh, a) & jnp.asarray(np.roll(solved, sh, axis=a)))
         n_fluid = jnp.maximum(jnp.sum(fluid), 1)
         b = jnp.where(jnp.any(surface), b, jnp.where(fluid, b - jnp.sum(b) / n_fluid, 0.0))
         # Jacobi: diag(A)_c = sum over corners i of coef^2 s^T W_i s
@@ -499,7 +506,7 @@ def make_projection(
             p, q = solve(b, p0), None
         else:
             b_x = jnp.where(
-                deep_cells(fluid, valid, scene.periodic) & (phi < 1.0 - PACKING_DEAD_BAND), (phi - 1.0) * vol_c, 0.0
+                deep_cells(fluid, solved, scene.periodic) & (phi < 1.0 - PACKING_DEAD_BAND), (phi - 1.0) * vol_c, 0.0
             )
             b_x = jnp.minimum(1.0, POSITION_RELAXATION * POSITION_EVERY * scene.dt * jnp.sqrt(g_mag / h)) * b_x
             p = solve(b, p0)
