@@ -110,9 +110,9 @@ class Internal:
 
 
 # Parameters shared by every law.
-RHO = Param(
-    "rho", "material.density_kg_m3", "kg/m^3", "Reference density rho.", lo=0.0, lo_open=True, bounds=(100.0, 2e4)
-)
+# at least 1 kg/m^3 (any fluid or slurry has more): 1e-300 passed the old "> 0" and, in float64 with the grid
+# pressure, made the nodal masses of a 4 cm grid about 1e-304, whose inverses overflow: NaN at the first step
+RHO = Param("rho", "material.density_kg_m3", "kg/m^3", "Reference density rho.", lo=1.0, bounds=(100.0, 2e4))
 KAPPA = Param(
     "kappa",
     "material.bulk_modulus_pa",
