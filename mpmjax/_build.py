@@ -582,7 +582,7 @@ EST_STEP_S = 2e-4  # and at least this per step (small runs: the per-step overhe
 # hydrostatic strain rho g H / kappa falls: warn below this.  Measured (docs/validation.md, "Incompressible
 # limit"): dambreak-lab 1.282 / 1.175 / 0.647 m at 24 / 2.4 / 0.24 %; bingham-dambreak (h = 1 cm) 1.240 / 1.184 /
 # 0.732 m at 5 / 0.5 / 0.05 %, and 1.315 m with the grid pressure.  The Newtonian Cruchaga columns move by at most
-# 0.6 % over the same range (κ / 10 to κ x 10), so a Newtonian material is not warned about
+# 0.9 % over κ / 10 to κ x 10 (free-surface front at 0.2 s, h = 5 mm), so a purely viscous material is not warned about
 LOCKING_STRAIN = 0.05
 
 
@@ -696,12 +696,25 @@ def start_warnings(setup: Setup) -> list[str]:
                 f"h = domain.cell_size_m = {h:g} m)"
             )
             k_soft = rho * (10.0 * v) ** 2  # Mach 0.1 at the velocity scale (docs/scenarios.md)
-            fix = 'set numerics.pressure = "incompressible" (the step then follows the flow speed; kappa does not enter), '
+            # the grid pressure, where the scene may take it (validation refuses it with these options)
+            grid_ok = (
+                sc.formulation != "depth-averaged"
+                and cfg["numerics.volume_averaging"] == "none"
+                and not cfg["numerics.grid_density_cap"]
+                and not (sc.decomposition == "slab" and sc.devices > 1)
+            )
+            fix = (
+                'set numerics.pressure = "incompressible" (the step then follows the flow speed; kappa does not '
+                "enter), "
+                if grid_ok
+                else ""
+            )
             if k_soft < kappa and v > 0 and c > 10.0 * v:
+                locks = _locking_warning(setup) is not None or _locking_warning_if_soft(setup, k_soft)
                 fix += (
                     f"lower material.bulk_modulus_pa towards rho (10 v)^2 = {k_soft:.3g} Pa (Mach 0.1 at the velocity "
-                    f"scale v = {v:.3g} m/s, weakly compressible; docs/scenarios.md; a yield-stress material locks "
-                    "there, see the warning on its hydrostatic strain), "
+                    f"scale v = {v:.3g} m/s, weakly compressible; docs/scenarios.md"
+                    + ("; this material locks there, see the warning on its hydrostatic strain), " if locks else "), ")
                 )
         else:
             cause = (
@@ -718,18 +731,35 @@ def start_warnings(setup: Setup) -> list[str]:
 
 
 def _locking_warning(setup: Setup) -> str | None:
-    """The ``LOCKING_STRAIN`` warning of ``start_warnings``, or None."""
+    """The ``LOCKING_STRAIN`` warning of ``start_warnings``, or None.  H is the deepest column of the material
+    along gravity: its particles binned by their position across gravity (bins of one cell), each bin's extent
+    along gravity plus one particle spacing (a long body on a slope tilted by gravity.slope_deg is as deep as
+    its thickness, not its length times the slope).  A scene with no material at the start (a pipe inflow) is
+    not warned about: its deposit's depth is not known before the run."""
     cfg, sc = setup.cfg, setup.scene
-    if sc.pressure != "explicit" or sc.formulation == "depth-averaged" or cfg["material.model"] == "newtonian":
-        return None
+    if sc.pressure != "explicit" or sc.formulation == "depth-averaged" or cfg["numerics.volume_averaging"] != "none":
+        return None  # (J-bar is the explicit step's own anti-locking option, with its overshoot: docs/validation.md)
+    mat = setup.params.material
+    if not (float(sc.rheology.yield_stress(mat)) > 0.0 or sc.rheology.internals):
+        return None  # a purely viscous law (Newtonian, or a yield-stress law at tau_y = 0)
     g = np.asarray(setup.params.gravity, float)
     gn = float(np.linalg.norm(g))
     act = np.asarray(setup.state.active)
     if gn == 0.0 or not act.any():
         return None
-    up = np.asarray(setup.state.x, float)[act] @ (-g / gn)
-    depth = float(up.max() - up.min()) + sc.h / cfg["numerics.ppc"]  # particle centres + half a spacing each end
-    rho, kappa = float(setup.params.material.rho), float(setup.params.material.kappa)
+    x = np.asarray(setup.state.x, float)[act]
+    down = g / gn
+    along = x @ -down
+    across = x - np.outer(x @ down, down)  # positions in the plane normal to gravity
+    bins = np.floor(across / sc.h).astype(np.int64)
+    _, col = np.unique(bins, axis=0, return_inverse=True)
+    col = col.reshape(-1)
+    top = np.full(col.max() + 1, -np.inf)
+    low = np.full(col.max() + 1, np.inf)
+    np.maximum.at(top, col, along)
+    np.minimum.at(low, col, along)
+    depth = float(np.max(top - low)) + sc.h / cfg["numerics.ppc"]  # particle centres + half a spacing each end
+    rho, kappa = float(mat.rho), float(mat.kappa)
     strain = rho * gn * depth / kappa
     if strain >= LOCKING_STRAIN:
         return None
@@ -742,3 +772,9 @@ def _locking_warning(setup: Setup) -> str | None:
         f"does not enter), or lower material.bulk_modulus_pa to {rho * gn * depth / LOCKING_STRAIN:.3g} Pa or less "
         "(weakly compressible)"
     )
+
+
+def _locking_warning_if_soft(setup: Setup, kappa: float) -> bool:
+    """Whether ``_locking_warning`` would warn with material.bulk_modulus_pa = ``kappa``."""
+    soft = dataclasses.replace(setup, params=setup.params._replace(material=setup.params.material._replace(kappa=kappa)))
+    return _locking_warning(soft) is not None

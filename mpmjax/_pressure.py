@@ -465,6 +465,10 @@ def make_projection(
                 diag = diag + coef**2 * at(term, sgn)
         shift = REGULARISATION * diag
         diag = diag + shift
+        # a fluid cell whose corner nodes move no mass (the held ones are out of ``solved``; here: nodes with Q != 0
+        # but no mass, as float32 drops a near-empty node) has a zero row too: no right-hand side there either, or
+        # CG breaks down as above
+        b = jnp.where(diag > 0.0, b, 0.0)
         if operator == "stencil":
             C, r_diag = stencil(W, fluid, shift)
 
@@ -509,6 +513,7 @@ def make_projection(
                 deep_cells(fluid, solved, scene.periodic) & (phi < 1.0 - PACKING_DEAD_BAND), (phi - 1.0) * vol_c, 0.0
             )
             b_x = jnp.minimum(1.0, POSITION_RELAXATION * POSITION_EVERY * scene.dt * jnp.sqrt(g_mag / h)) * b_x
+            b_x = jnp.where(diag > 0.0, b_x, 0.0)
             p = solve(b, p0)
             if POSITION_EVERY == 1:
                 q = solve(b_x, jnp.zeros_like(b_x))

@@ -354,7 +354,7 @@ def test_known_crashers():
         ("domain.hi_m", [10**400, 1.0]),  # int too large to convert to float
         ("domain.cell_size_m", 5e-324),  # cell count overflows -> int(inf)
         ("material.density_kg_m3", 10**400),
-        ("material.density_kg_m3", 1e-300),  # float32: rho -> 0 -> division by zero
+        ("material.density_kg_m3", 1e-300),  # below the key's range (>= 1 kg/m^3)
         ("material.mu_max_pa_s", 1e-300),  # float32: mu_max -> 0 -> division by zero
         ("material.bulk_modulus_pa", 1e300),  # float32: kappa -> inf -> dt = 0
         ("time.t_end_s", 1e308),  # steps per frame -> inf -> math.ceil(inf)
@@ -370,7 +370,7 @@ def test_known_crashers():
         if key == "gate.normal":
             set_path(raw, "gate.point_m", [0.1, 0.0])
         assert check(raw, {key}) != "built", key
-    # float64: the same extremes reach build() and the time-step limits
+    # float64: the same extremes (but the density, out of its range) reach build() and the time-step limits
     # a density below 1 kg/m^3 is out of range (with the grid pressure 1e-300 used to build and NaN at step 1)
     raw = small_base()
     raw["numerics"]["dtype"] = "float64"

@@ -502,6 +502,12 @@ def test_a_cell_the_walls_hold_whole_is_no_unknown(monkeypatch):
     mass, inv_m, has, v = _predictor(s, state)
     v_new, p, _, (A, b) = project(v, mass, inv_m, has, params)
     ij = (int((0.06 - sc.grid_origin[0]) / sc.h), int((0.02 - sc.grid_origin[1]) / sc.h))
+    # the cell would be fluid (packed well above FLUID_FRACTION), so it is left out for its held corners alone
+    shape = tuple(sc.grid_shape)
+    signs = [np.array(c) for c in np.ndindex(*(2,) * sc.dim)]
+    fill_c = _pressure._np_corner_sum(np.asarray(_boundary.node_fill(sc), float).reshape(shape), signs)
+    corner_mass = _pressure._np_corner_sum(np.asarray(mass, float).reshape(shape), signs)
+    assert corner_mass[ij] / (float(params.material.rho) * sc.h**2 * fill_c[ij]) > 1.5
     assert bool(jnp.all(jnp.isfinite(p))) and bool(jnp.all(jnp.isfinite(v_new)))
     assert float(p[ij]) == 0.0 and float(b[ij]) == 0.0
     assert float(jnp.max(p)) > 0.0  # the layer's own cells are solved
