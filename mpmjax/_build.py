@@ -582,7 +582,7 @@ EST_STEP_S = 2e-4  # and at least this per step (small runs: the per-step overhe
 # hydrostatic strain rho g H / kappa falls: warn below this.  Measured (docs/validation.md, "Incompressible
 # limit"): dambreak-lab 1.282 / 1.175 / 0.647 m at 24 / 2.4 / 0.24 %; bingham-dambreak (h = 1 cm) 1.240 / 1.184 /
 # 0.732 m at 5 / 0.5 / 0.05 %, and 1.315 m with the grid pressure.  The Newtonian Cruchaga columns move by at most
-# 0.9 % over κ / 10 to κ x 10 (free-surface front at 0.2 s, h = 5 mm), so a purely viscous material is not warned about
+# 0.9 % over κ / 10 to κ x 10 (free-surface front at 0.2 s, h = 5 mm): a purely viscous material is not warned
 LOCKING_STRAIN = 0.05
 
 
@@ -710,7 +710,9 @@ def start_warnings(setup: Setup) -> list[str]:
                 else ""
             )
             if k_soft < kappa and v > 0 and c > 10.0 * v:
-                locks = _locking_warning(setup) is not None or _locking_warning_if_soft(setup, k_soft)
+                depth = _locking_depth(setup)
+                g_mag = float(np.linalg.norm(np.asarray(setup.params.gravity, float)))
+                locks = depth is not None and rho * g_mag * depth / k_soft < LOCKING_STRAIN  # at Mach 0.1
                 fix += (
                     f"lower material.bulk_modulus_pa towards rho (10 v)^2 = {k_soft:.3g} Pa (Mach 0.1 at the velocity "
                     f"scale v = {v:.3g} m/s, weakly compressible; docs/scenarios.md"
@@ -730,18 +732,19 @@ def start_warnings(setup: Setup) -> list[str]:
     return out
 
 
-def _locking_warning(setup: Setup) -> str | None:
-    """The ``LOCKING_STRAIN`` warning of ``start_warnings``, or None.  H is the deepest column of the material
-    along gravity: its particles binned by their position across gravity (bins of one cell), each bin's extent
-    along gravity plus one particle spacing (a long body on a slope tilted by gravity.slope_deg is as deep as
-    its thickness, not its length times the slope).  A scene with no material at the start (a pipe inflow) is
-    not warned about: its deposit's depth is not known before the run."""
+def _locking_depth(setup: Setup) -> float | None:
+    """H [m] of the ``LOCKING_STRAIN`` warning, or None where it does not apply.  H is the deepest column of the
+    material along gravity: its particles binned by their position across gravity (bins of one cell), each bin's
+    extent along gravity plus one particle spacing (a long body on a slope tilted by gravity.slope_deg is as deep
+    as its thickness, not its length times the slope).  None for the grid pressure, the depth-averaged formulation,
+    J-bar (the explicit step's own anti-locking option, with its overshoot: docs/validation.md), a purely viscous
+    law (Newtonian, or a yield-stress law at tau_y = 0), no gravity, and a scene with no material at the start (a
+    pipe inflow: its deposit's depth is not known before the run)."""
     cfg, sc = setup.cfg, setup.scene
     if sc.pressure != "explicit" or sc.formulation == "depth-averaged" or cfg["numerics.volume_averaging"] != "none":
-        return None  # (J-bar is the explicit step's own anti-locking option, with its overshoot: docs/validation.md)
-    mat = setup.params.material
-    if not (float(sc.rheology.yield_stress(mat)) > 0.0 or sc.rheology.internals):
-        return None  # a purely viscous law (Newtonian, or a yield-stress law at tau_y = 0)
+        return None
+    if not (float(sc.rheology.yield_stress(setup.params.material)) > 0.0 or sc.rheology.internals):
+        return None
     g = np.asarray(setup.params.gravity, float)
     gn = float(np.linalg.norm(g))
     act = np.asarray(setup.state.active)
@@ -751,16 +754,24 @@ def _locking_warning(setup: Setup) -> str | None:
     down = g / gn
     along = x @ -down
     across = x - np.outer(x @ down, down)  # positions in the plane normal to gravity
-    bins = np.floor(across / sc.h).astype(np.int64)
-    _, col = np.unique(bins, axis=0, return_inverse=True)
+    _, col = np.unique(np.floor(across / sc.h).astype(np.int64), axis=0, return_inverse=True)
     col = col.reshape(-1)
     top = np.full(col.max() + 1, -np.inf)
     low = np.full(col.max() + 1, np.inf)
     np.maximum.at(top, col, along)
     np.minimum.at(low, col, along)
-    depth = float(np.max(top - low)) + sc.h / cfg["numerics.ppc"]  # particle centres + half a spacing each end
+    return float(np.max(top - low)) + sc.h / cfg["numerics.ppc"]  # particle centres + half a spacing each end
+
+
+def _locking_warning(setup: Setup) -> str | None:
+    """The ``LOCKING_STRAIN`` warning of ``start_warnings``, or None (``_locking_depth``)."""
+    depth = _locking_depth(setup)
+    if depth is None:
+        return None
+    mat = setup.params.material
     rho, kappa = float(mat.rho), float(mat.kappa)
-    strain = rho * gn * depth / kappa
+    rho_g_h = rho * float(np.linalg.norm(np.asarray(setup.params.gravity, float))) * depth
+    strain = rho_g_h / kappa
     if strain >= LOCKING_STRAIN:
         return None
     return (
@@ -769,12 +780,6 @@ def _locking_warning(setup: Setup) -> str | None:
         f"below {100 * LOCKING_STRAIN:g} %, where the particles' pressure locks a yield-stress or thixotropic material "
         "and the runout depends on kappa (dambreak-lab: 1.282 m at 24 %, 0.647 m at 0.24 %; docs/validation.md, "
         '"Incompressible limit"): set numerics.pressure = "incompressible" (the pressure solved on the grid; kappa '
-        f"does not enter), or lower material.bulk_modulus_pa to {rho * gn * depth / LOCKING_STRAIN:.3g} Pa or less "
+        f"does not enter), or lower material.bulk_modulus_pa to {rho_g_h / LOCKING_STRAIN:.3g} Pa or less "
         "(weakly compressible)"
     )
-
-
-def _locking_warning_if_soft(setup: Setup, kappa: float) -> bool:
-    """Whether ``_locking_warning`` would warn with material.bulk_modulus_pa = ``kappa``."""
-    soft = dataclasses.replace(setup, params=setup.params._replace(material=setup.params.material._replace(kappa=kappa)))
-    return _locking_warning(soft) is not None

@@ -137,21 +137,28 @@ def input_yield_stress(cfg: dict) -> tuple[float | None, str]:
     return None, f"material.model = {model!r} has no yield stress"
 
 
+def back_calculate(height_m: float, cfg: dict) -> tuple[float, float, float | None]:
+    """(s', tau', the yield stress back-calculated [Pa], None when s' <= 0 or s' >= 1) of the slumped centre
+    height ``height_m`` [m] of ``cfg``'s cylinder, by the Pashias relation."""
+    H = float(cfg["bodies"][0]["height_m"])
+    s_prime = (H - height_m) / H
+    tau_prime = pashias_tau(s_prime)
+    rho_g_h = float(cfg["material.density_kg_m3"]) * float(cfg["gravity.g_m_s2"]) * H
+    return s_prime, tau_prime, (tau_prime * rho_g_h if 0.0 < tau_prime < 0.5 else None)
+
+
 def summary(result) -> dict:
     """summary.json's ``slump_test`` of a run (``result``: ``mpmjax._io.read_result``'s dict)."""
     cfg = json.loads(result["attrs"]["scene_config_json"])
     body = cfg["bodies"][0]
     H, R = float(body["height_m"]), float(body["radius_m"])
-    rho, g = float(cfg["material.density_kg_m3"]), float(cfg["gravity.g_m_s2"])
     fr = result["frames"]
     vol = np.asarray(result["particles"]["vol0_m3"], float)
     first = measure(fr["x_m"][0], vol, fr["active"][0], cfg)
     heights = [measure(fr["x_m"][k], vol, fr["active"][k], cfg)["height_m"] for k in range(len(fr["t_s"]))]
     last = measure(fr["x_m"][-1], vol, fr["active"][-1], cfg)
     slump = H - last["height_m"]
-    s_prime = slump / H
-    tau_prime = pashias_tau(s_prime)
-    back = tau_prime * rho * g * H if 0.0 < tau_prime < 0.5 else None
+    s_prime, tau_prime, back = back_calculate(last["height_m"], cfg)
     given, given_is = input_yield_stress(cfg)
     rel = (back - given) / given if back is not None and given else None
     return {

@@ -432,11 +432,11 @@ def _slump_run(size, base, rec):
             rec["reason"] = f"tau_y = {tau:g} Pa: {rec['reason']}"
             return
         m = _slump.measure(np.asarray(final.x), np.asarray(final.vol0), np.asarray(final.active), cfg)
-        s_prime = 1.0 - m["height_m"] / float(cfg["bodies"][0]["height_m"])
-        rho_g_h = float(cfg["material.density_kg_m3"]) * float(cfg["gravity.g_m_s2"]) * float(cfg["bodies"][0]["height_m"])
-        back = _slump.pashias_tau(s_prime) * rho_g_h if 0.0 < s_prime < 1.0 else float("nan")
+        s_prime, _, back = _slump.back_calculate(m["height_m"], cfg)
+        back = float("nan") if back is None else back
         slumps.append(s_prime)
-        checks.append(_check(f"tau_y = {tau:g} Pa back-calculated (slump s' = {s_prime:.3f})", back, tau, rec["tolerance"]))
+        name = f"tau_y = {tau:g} Pa back-calculated (slump s' = {s_prime:.3f})"
+        checks.append(_check(name, back, tau, rec["tolerance"]))
     rec.update(reference=SLUMP_TAUS[1], measured=checks[1]["measured"], unit="Pa", slump_ratio=slumps)
     rec["checks"] = checks
 
