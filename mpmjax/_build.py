@@ -513,6 +513,7 @@ def build(cfg: dict) -> Setup:
         pressure=cfg["numerics.pressure"],
         void_closure=cfg["numerics.void_closure"],
         maxwell_rotation=cfg["numerics.maxwell_rotation"],
+        wall_yield=cfg["numerics.wall_yield"],
         formulation=cfg["model.formulation"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

@@ -180,6 +180,8 @@ class Scene:
       void_closure: with ``incompressible``, ``off``, ``position`` (voids closed by moving the
         particles) or ``velocity`` (the deep cells' packing error corrected both ways in the pressure
         solve itself); ``_pressure``, step 4.
+      wall_yield: ``cell`` or ``wall`` (where the row of particles on a no-slip box face tests its
+        yield stress; ``_wall_yield``).
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
         ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
     """
@@ -218,6 +220,7 @@ class Scene:
     void_closure: str = "off"
     maxwell_rotation: str = "lag"
     formulation: str = "full"
+    wall_yield: str = "cell"
 
     @property
     def n_nodes(self) -> int:

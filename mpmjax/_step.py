@@ -58,6 +58,7 @@ from ._scene import Params, Scene, State, next_time
 from ._shallow import make_shallow_step
 from ._shard import AXIS, Replicated, shard_particles
 from ._slab import make_slab_advance
+from ._wall_yield import make_wall_yield
 from ._transfer import _wsum, make_g2p, make_p2g, packing_fraction, volume_average, volume_increment
 
 # nodal mass below this fraction of a full cell's mass counts as an empty node (see step())
@@ -177,6 +178,8 @@ def make_step(scene: Scene, axis: str | None = None):
         coulomb = terrain is not None and terrain.kind == "coulomb"
         project = make_projection(scene, linear, node_fill(scene), constrained=not coulomb)
 
+    wall_material = make_wall_yield(scene, axis)  # numerics.wall_yield = "wall", else None
+
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
 
     whole = Replicated(scene.n_nodes, axis)
@@ -280,7 +283,9 @@ def make_step(scene: Scene, axis: str | None = None):
             # active particle (``_simulate.make_prefix_advance``) carries the rest exactly as this step would
             beyond = along(x - jnp.asarray(scene.gate.point, dtp)[None, :], scene.gate.normal) > 0.0
             gate = gate | (state.active & beyond)
-        mu, internal = rheo.viscosity(params.material, shear, state.internal, dt, gate)
+        # numerics.wall_yield = "wall": the wall row's yield stress as if tested at the wall (_wall_yield)
+        material = params.material if wall_material is None else wall_material(state, params.material, shear)
+        mu, internal = rheo.viscosity(material, shear, state.internal, dt, gate)
         tau = deviatoric_update(
             state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update, scene.maxwell_rotation
         )

@@ -205,13 +205,14 @@ def test_bad_terrain_is_a_scene_error():
         validate(raw)
 
 
-def _near_yield_plug_speed(cells: int, r: float) -> tuple[float, float]:
+def _near_yield_plug_speed(cells: int, r: float, wall_yield: str = "cell") -> tuple[float, float]:
     """The validation suite's Bingham layer on a 30-degree no-slip incline (H = 0.1 m, tau_y = tau_b / r;
     ``mpmjax.studies.validate.incline_config``) at ``cells`` across H: (plug speed averaged over the last
     0.3 s of 1 s [m/s], exact film speed [m/s]).  float64, and the Maxwell modulus pinned stiff (200 kPa,
     the explicit default's G = kappa) so that the bed, not the modulus, is under test
-    (docs/incompressible.md, "At the yield limit")."""
-    cfg = incline_config(cells, r, 1.0, {"numerics.dtype": "float64", "numerics.maxwell_shear_modulus_pa": 2e5})
+    (docs/incompressible.md, "At the yield limit"); ``wall_yield``: ``numerics.wall_yield``."""
+    base = {"numerics.dtype": "float64", "numerics.maxwell_shear_modulus_pa": 2e5, "numerics.wall_yield": wall_yield}
+    cfg = incline_config(cells, r, 1.0, base)
     s = build(cfg)
     _, frames = run(s.scene, s.state, s.params)
     u = float(np.asarray(frames.v)[-3:, :, 0][:, incline_top(s)].mean())
@@ -232,3 +233,17 @@ def test_the_bed_samples_the_yield_stress_half_a_cell_above_it():
     assert held < 0.10 * exact, (held, exact)
     flows, exact = _near_yield_plug_speed(10, 1.1)
     assert flows == pytest.approx(exact, rel=0.03), (flows, exact)
+
+
+@pytest.mark.parametrize("r, measured", [(1.1, -0.017), (1.05, 0.016)])
+def test_the_wall_yield_tests_the_bed_stress_itself(r, measured):
+    """Issue 31, item 2, the treatment: ``numerics.wall_yield = "wall"`` gives the wall row the flow rule
+    integrated across the row with its measured stress gradient (``_wall_yield``), so the layers the
+    test above holds flow at the film speed with their sheared layer inside the first cell: delta =
+    0.45 h (r = 1.1) and 0.24 h (r = 1.05) at h = 2 cm, 5 cells across H.  Measured -1.7 % and +1.6 %
+    (held at 2 % and 14 % of the film speed with ``cell``); bound 5 %: the integrated law is exact
+    for a linear stress across the row, and what is left is the Maxwell lag, the Papanastasiou
+    regularisation and the gradient's estimate from two rows of particles (0.3-3.3 % over r = 1.05-1.5
+    at 5-20 cells, docs/incompressible.md, "The bed")."""
+    u, exact = _near_yield_plug_speed(5, r, "wall")
+    assert u == pytest.approx(exact, rel=0.05), (u, exact, measured)

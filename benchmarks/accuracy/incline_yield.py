@@ -20,6 +20,10 @@ each, steps and CPU.
     .venv/bin/python benchmarks/accuracy/incline_yield.py            # both pressures, r 1.05-1.5, 5/10/20 cells
     .venv/bin/python benchmarks/accuracy/incline_yield.py incompressible 1.1 10
     .venv/bin/python benchmarks/accuracy/incline_yield.py incompressible 1.1 10 maxwell_shear_modulus_pa=2e5
+    .venv/bin/python benchmarks/accuracy/incline_yield.py explicit 1.1 5 maxwell_shear_modulus_pa=2e5 wall_yield=wall
+
+The rows with "numerics.wall_yield": "wall" in incline_yield.jsonl are docs/wall-yield.md's table (explicit
+at cfl 0.4 and 0.2, and the grid pressure).
 """
 
 import json
@@ -84,7 +88,13 @@ if __name__ == "__main__":
     pressures = [sys.argv[1]] if len(sys.argv) > 1 else ["explicit", "incompressible"]
     ratios = [float(sys.argv[2])] if len(sys.argv) > 2 else [1.05, 1.1, 1.2, 1.5]
     cells = [int(sys.argv[3])] if len(sys.argv) > 3 else [5, 10, 20]
-    extra = {k: float(v) for k, v in (a.split("=", 1) for a in sys.argv[4:])}  # numerics.<key>=<number>
+    def value(v: str):
+        try:
+            return float(v)
+        except ValueError:
+            return v  # a choice, e.g. wall_yield=wall
+
+    extra = {k: value(v) for k, v in (a.split("=", 1) for a in sys.argv[4:])}  # <numerics key>=<value>
     for p in pressures:
         for r in ratios:
             for c in cells:

@@ -216,6 +216,18 @@ _HEAD: dict[str, Key] = {
         "which dilation partly flattered; -6 % at 32 cells).",
         choices=("off", "position", "velocity"),
     ),
+    "numerics.wall_yield": Key(
+        str,
+        "cell",
+        "-",
+        "Where the particles next to an axis-aligned no-slip box face test their yield stress. cell: as every "
+        "particle, at the rate of its cell row, so the row next to the wall yields when the stress at its centre, "
+        "h/2 above the wall, reaches tau_y (a deposit stops on a bed raised by h/2: an error of h/(2H) in the "
+        "stopping stress, first order in h). wall: that row's flow rule integrated across the row with the stress "
+        "gradient measured there, so it yields when the wall's own stress reaches tau_y (Bingham and "
+        "Herschel-Bulkley; other laws unchanged; docs/incompressible.md, \"The bed\").",
+        choices=("cell", "wall"),
+    ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
     "numerics.devices": Key(
         int,

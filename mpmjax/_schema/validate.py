@@ -372,6 +372,17 @@ def _validate_material(flat: dict, out: dict) -> None:
             )
 
 
+def _check_wall_yield(out: dict):
+    """numerics.wall_yield = "wall" integrates a flow rule in stress and rate (``_wall_yield``): the rate must
+    be the standard measure sqrt(2 d':d') [1/s], not the thesis's d':d'/4."""
+    if out["numerics.wall_yield"] == "wall" and out.get("material.shear_measure", "standard") != "standard":
+        raise SceneError(
+            f"numerics.wall_yield = 'wall' is invalid with material.shear_measure = "
+            f"{_show(out['material.shear_measure'])} (the wall row's flow rule needs a shear rate in 1/s); "
+            "allowed: material.shear_measure = 'standard', or numerics.wall_yield = 'cell'"
+        )
+
+
 def _check_pressure(out: dict):
     """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
     and the slab decomposition (whose halos the grid solve does not exchange) are refused.  The
@@ -644,6 +655,7 @@ _DA_FIXED = {
     "numerics.transfer": "apic",
     "numerics.devices": 1,
     "numerics.void_closure": "off",
+    "numerics.wall_yield": "cell",
 }
 
 
@@ -712,6 +724,7 @@ def validate(raw: dict) -> dict:
     if out["numerics.dtype"] == "float32":
         _check_float32_range(out)
     _check_pressure(out)
+    _check_wall_yield(out)
     lo, hi, h = _validate_domain(out)
     if dim == 2:
         only3 = [k for k in flat if SCHEMA[k].only_3d]
