@@ -52,6 +52,9 @@ def test_the_key_is_refused_where_it_cannot_apply():
     validate(_raw(wall_yield="wall"))
     with pytest.raises(SceneError, match="numerics.wall_yield"):
         validate(_raw(wall_yield="bed"))
+    with pytest.raises(SceneError, match="numerics.shape = 'quadratic_bm'"):
+        validate(_raw(wall_yield="wall", shape="quadratic_bm"))
+    validate(_raw(wall_yield="wall", shape="linear"))
     thesis = _raw(wall_yield="wall")
     thesis["material"]["shear_measure"] = "thesis"
     with pytest.raises(SceneError, match="material.shear_measure"):

@@ -225,7 +225,8 @@ _HEAD: dict[str, Key] = {
         "h/2 above the wall, reaches tau_y (a deposit stops on a bed raised by h/2: an error of h/(2H) in the "
         "stopping stress, first order in h). wall: that row's flow rule integrated across the row with the stress "
         "gradient measured there, so it yields when the wall's own stress reaches tau_y (Bingham and "
-        "Herschel-Bulkley; other laws unchanged; docs/incompressible.md, \"The bed\").",
+        "Herschel-Bulkley; other laws unchanged; the gimp and linear shapes and the standard shear measure only; "
+        "a near-yield layer 5 cells deep: -97 % with cell, -1.6 % with wall; docs/wall-yield.md).",
         choices=("cell", "wall"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),
