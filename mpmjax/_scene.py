@@ -220,7 +220,7 @@ class Scene:
     void_closure: str = "off"
     maxwell_rotation: str = "lag"
     formulation: str = "full"
-    wall_yield: str = "cell"
+    wall_yield: str = "wall"
 
     @property
     def n_nodes(self) -> int:

@@ -220,7 +220,8 @@ def _near_yield_plug_speed(cells: int, r: float, wall_yield: str = "cell") -> tu
 
 
 def test_the_bed_samples_the_yield_stress_half_a_cell_above_it():
-    """Issue 31, item 2.  With one strain rate per cell row, the first row carries the bed stress less
+    """Issue 31, item 2, with ``numerics.wall_yield = "cell"`` (the default until 2026-12-05; the test below
+    has "wall").  With one strain rate per cell row, the first row carries the bed stress less
     the weight of the half cell below its centre and yields as a whole, so a layer whose sheared
     layer delta = H (1 - tau_y / tau_b) is thinner than h/2 does not flow at all, and one whose
     sheared layer spans the first cell flows at the film speed (the cell-centred steady state is

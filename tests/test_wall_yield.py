@@ -48,6 +48,20 @@ def _raw(**numerics):
     }
 
 
+def test_the_default_falls_back_to_cell_where_wall_does_not_apply():
+    """The default is "wall"; a scene with a B-spline shape, the thesis's shear measure or the depth-averaged
+    formulation gets "cell" without being refused (only a "wall" the scene sets itself is refused there)."""
+    assert validate(_raw())["numerics.wall_yield"] == "wall"
+    assert validate(_raw(shape="linear"))["numerics.wall_yield"] == "wall"
+    assert validate(_raw(shape="quadratic_bm"))["numerics.wall_yield"] == "cell"
+    thesis = _raw()
+    thesis["material"]["shear_measure"] = "thesis"
+    assert validate(thesis)["numerics.wall_yield"] == "cell"
+    shallow = _raw()
+    shallow["model"] = {"formulation": "depth-averaged"}
+    assert validate(shallow)["numerics.wall_yield"] == "cell"
+
+
 def test_the_key_is_refused_where_it_cannot_apply():
     validate(_raw(wall_yield="wall"))
     with pytest.raises(SceneError, match="numerics.wall_yield"):

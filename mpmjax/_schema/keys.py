@@ -218,15 +218,16 @@ _HEAD: dict[str, Key] = {
     ),
     "numerics.wall_yield": Key(
         str,
-        "cell",
+        "wall",
         "-",
         "Where the particles next to an axis-aligned no-slip box face test their yield stress. cell: as every "
         "particle, at the rate of its cell row, so the row next to the wall yields when the stress at its centre, "
         "h/2 above the wall, reaches tau_y (a deposit stops on a bed raised by h/2: an error of h/(2H) in the "
         "stopping stress, first order in h). wall: that row's flow rule integrated across the row with the stress "
         "gradient measured there, so it yields when the wall's own stress reaches tau_y (Bingham and "
-        "Herschel-Bulkley; other laws unchanged; the gimp and linear shapes and the standard shear measure only; "
-        "a near-yield layer 5 cells deep: -97 % with cell, -1.6 % with wall; docs/wall-yield.md).",
+        "Herschel-Bulkley; other laws unchanged; a near-yield layer 5 cells deep: -97 % with cell, -1.6 % with "
+        "wall; docs/wall-yield.md). The default since 2026-12-05 (cell before); it needs the gimp or linear shape, "
+        "the standard shear measure and the full formulation, and falls back to cell where a scene has another.",
         choices=("cell", "wall"),
     ),
     "numerics.dtype": Key(str, "float32", "-", "Floating-point precision.", choices=("float32", "float64")),

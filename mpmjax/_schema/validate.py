@@ -376,25 +376,37 @@ def _validate_material(flat: dict, out: dict) -> None:
 WALL_YIELD_SHAPES = ("gimp", "linear")
 
 
-def _check_wall_yield(out: dict):
+def _check_wall_yield(out: dict, given: dict):
     """numerics.wall_yield = "wall" integrates a flow rule in stress and rate across a cell row whose strain rate
     is one value (``_wall_yield``): the rate must be the standard measure sqrt(2 d':d') [1/s], not the thesis's
     d':d'/4, and the shape linear or GIMP (with the B-splines the rate varies inside the row: the near-yield
-    incline read -59 / -38 % at 5 / 10 cells with quadratic_bm, docs/wall-yield.md)."""
+    incline read -59 / -38 % at 5 / 10 cells with quadratic_bm, docs/wall-yield.md); the depth-averaged
+    formulation has no wall row.  The default falls back to "cell" where "wall" does not apply; a "wall" the
+    scene sets itself is refused there.  ``given``: the keys the scene set."""
     if out["numerics.wall_yield"] != "wall":
         return
-    if out["numerics.shape"] not in WALL_YIELD_SHAPES:
-        raise SceneError(
-            f"numerics.wall_yield = 'wall' is invalid with numerics.shape = {_show(out['numerics.shape'])} (the wall "
-            "row's flow rule assumes one strain rate per cell row); allowed: numerics.shape = "
-            f"{' or '.join(repr(x) for x in WALL_YIELD_SHAPES)}, or numerics.wall_yield = 'cell'"
+    why = None
+    if out["model.formulation"] == "depth-averaged":
+        why = (
+            f"model.formulation = {_show(out['model.formulation'])} (its bed is a closure, with no cell row); "
+            "allowed: numerics.wall_yield = 'cell'"
         )
-    if out.get("material.shear_measure", "standard") != "standard":
-        raise SceneError(
-            f"numerics.wall_yield = 'wall' is invalid with material.shear_measure = "
-            f"{_show(out['material.shear_measure'])} (the wall row's flow rule needs a shear rate in 1/s); "
-            "allowed: material.shear_measure = 'standard', or numerics.wall_yield = 'cell'"
+    elif out["numerics.shape"] not in WALL_YIELD_SHAPES:
+        why = (
+            f"numerics.shape = {_show(out['numerics.shape'])} (the wall row's flow rule assumes one strain rate per "
+            f"cell row); allowed: numerics.shape = {' or '.join(repr(x) for x in WALL_YIELD_SHAPES)}, or "
+            "numerics.wall_yield = 'cell'"
         )
+    elif out.get("material.shear_measure", "standard") != "standard":
+        why = (
+            f"material.shear_measure = {_show(out['material.shear_measure'])} (the wall row's flow rule needs a "
+            "shear rate in 1/s); allowed: material.shear_measure = 'standard', or numerics.wall_yield = 'cell'"
+        )
+    if why is None:
+        return
+    if "numerics.wall_yield" in given:
+        raise SceneError(f"numerics.wall_yield = 'wall' is invalid with {why}")
+    out["numerics.wall_yield"] = "cell"
 
 
 def _check_pressure(out: dict):
@@ -669,7 +681,6 @@ _DA_FIXED = {
     "numerics.transfer": "apic",
     "numerics.devices": 1,
     "numerics.void_closure": "off",
-    "numerics.wall_yield": "cell",
 }
 
 
@@ -738,7 +749,7 @@ def validate(raw: dict) -> dict:
     if out["numerics.dtype"] == "float32":
         _check_float32_range(out)
     _check_pressure(out)
-    _check_wall_yield(out)
+    _check_wall_yield(out, flat)
     lo, hi, h = _validate_domain(out)
     if dim == 2:
         only3 = [k for k in flat if SCHEMA[k].only_3d]
