@@ -4,7 +4,7 @@ With one strain rate per cell row, a no-slip bed's first row of particles shears
 stress is the row's mean: in equilibrium the bed stress less the weight of the half cell below the
 row's centre.  So that row yields when the stress h/2 above the bed reaches tau_y, not the bed's: a
 deposit stops where rho g (H - h/2) |grad H| = tau_y, a bed raised by h/2, first order in h
-(docs/incompressible.md, "At the yield limit").
+(docs/wall-yield.md).
 
 ``wall_yield = "wall"`` gives the wall row the flow rule integrated across the row instead.  The
 shear stress falls linearly across the row, tau(y) = tau_bar + (h/2 - y) 2 Delta / h, its drop from
@@ -24,7 +24,9 @@ for Herschel-Bulkley the flowing branch is Bingham's form with tau_pl = K gdot^n
 Every other particle, and a law without a yield stress, is unchanged.
 
 Where: the scene's axis-aligned no-slip box faces (not Navier-slip faces, inclined planes or DEM
-terrain).  Cost: one scatter of the volume and the traction into the two rows of each such wall.
+terrain), with the linear or GIMP shape and the standard shear measure (the scene validation falls back
+to "cell" otherwise).  The default since 2026-12-05.  Cost: one scatter of the volume and the traction
+into the two rows of each such wall.
 """
 
 from __future__ import annotations
