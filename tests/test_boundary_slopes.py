@@ -245,6 +245,6 @@ def test_the_wall_yield_tests_the_bed_stress_itself(r, measured):
     (held at 2 % and 14 % of the film speed with ``cell``); bound 5 %: the integrated law is exact
     for a linear stress across the row, and what is left is the Maxwell lag, the Papanastasiou
     regularisation and the gradient's estimate from two rows of particles (0.3-3.3 % over r = 1.05-1.5
-    at 5-20 cells, docs/incompressible.md, "The bed")."""
+    at 5-20 cells, docs/wall-yield.md)."""
     u, exact = _near_yield_plug_speed(5, r, "wall")
     assert u == pytest.approx(exact, rel=0.05), (u, exact, measured)

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import _bodies, _dem, _release, _rheology, _shapes
+from .. import _bodies, _dem, _release, _rheology, _shapes, _wall_yield
 from .._boundary import inflow_layout
 from .._scene import WALL_KINDS
 from .keys import _REQ, BODY_KEYS, BODY_TYPES, Key, SceneError
@@ -372,38 +372,31 @@ def _validate_material(flat: dict, out: dict) -> None:
             )
 
 
-# numerics.wall_yield = "wall" assumes one strain rate per cell row (``_wall_yield``): the shapes that have it
-WALL_YIELD_SHAPES = ("gimp", "linear")
-
-
 def _check_wall_yield(out: dict, given: dict):
-    """numerics.wall_yield = "wall" integrates a flow rule in stress and rate across a cell row whose strain rate
-    is one value (``_wall_yield``): the rate must be the standard measure sqrt(2 d':d') [1/s], not the thesis's
-    d':d'/4, and the shape linear or GIMP (with the B-splines the rate varies inside the row: the near-yield
-    incline read -59 / -38 % at 5 / 10 cells with quadratic_bm, docs/wall-yield.md); the depth-averaged
-    formulation has no wall row.  The default falls back to "cell" where "wall" does not apply; a "wall" the
-    scene sets itself is refused there.  ``given``: the keys the scene set."""
-    if out["numerics.wall_yield"] != "wall":
+    """numerics.wall_yield = "wall" where it cannot act (``_wall_yield.applies``: the shape, the shear measure,
+    the formulation): the default falls back to "cell"; a "wall" the scene sets itself is refused, naming the
+    key that conflicts.  ``given``: the keys the scene set."""
+    measure = out.get("material.shear_measure", "standard")
+    if out["numerics.wall_yield"] != "wall" or _wall_yield.applies(
+        out["numerics.shape"], measure, out["model.formulation"]
+    ):
         return
-    why = None
     if out["model.formulation"] == "depth-averaged":
         why = (
             f"model.formulation = {_show(out['model.formulation'])} (its bed is a closure, with no cell row); "
             "allowed: numerics.wall_yield = 'cell'"
         )
-    elif out["numerics.shape"] not in WALL_YIELD_SHAPES:
+    elif out["numerics.shape"] not in _wall_yield.SHAPES:
         why = (
             f"numerics.shape = {_show(out['numerics.shape'])} (the wall row's flow rule assumes one strain rate per "
-            f"cell row); allowed: numerics.shape = {' or '.join(repr(x) for x in WALL_YIELD_SHAPES)}, or "
+            f"cell row); allowed: numerics.shape = {' or '.join(repr(x) for x in _wall_yield.SHAPES)}, or "
             "numerics.wall_yield = 'cell'"
         )
-    elif out.get("material.shear_measure", "standard") != "standard":
+    else:
         why = (
-            f"material.shear_measure = {_show(out['material.shear_measure'])} (the wall row's flow rule needs a "
-            "shear rate in 1/s); allowed: material.shear_measure = 'standard', or numerics.wall_yield = 'cell'"
+            f"material.shear_measure = {_show(measure)} (the wall row's flow rule needs a shear rate in 1/s); "
+            "allowed: material.shear_measure = 'standard', or numerics.wall_yield = 'cell'"
         )
-    if why is None:
-        return
     if "numerics.wall_yield" in given:
         raise SceneError(f"numerics.wall_yield = 'wall' is invalid with {why}")
     out["numerics.wall_yield"] = "cell"
