@@ -22,7 +22,7 @@ The closure (one for every law; nothing here re-implements a law):
 
 ``closure`` returns tau_b(U) split for the step's implicit friction, tau_b = tau_0 + c U at the
 current U: the yield part tau_0 (what a layer at rest must exceed; plus a Coulomb part
-mu_c sigma_n with ``terrain.type = "coulomb"``) and the secant c = (tau_b - tau_0) / U [Pa s/m],
+mu_c sigma_n with ``terrain.type = "coulomb"`` or ``"voellmy"``, whose drag ``_shallow`` adds to c) and the secant c = (tau_b - tau_0) / U [Pa s/m],
 so the step can apply the viscous part implicitly (any c, any dt) and cap the yield part.
 """
 

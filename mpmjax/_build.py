@@ -157,6 +157,7 @@ def terrain_of(cfg: dict) -> Terrain | None:
         heights=tuple(map(tuple, hs)) if hs.ndim == 2 else tuple(map(float, hs)),
         kind=cfg["terrain.type"],
         friction=float(cfg["terrain.friction"]),
+        turbulence=float(cfg["terrain.turbulence_m_s2"]) if cfg["terrain.type"] == "voellmy" else math.inf,
     )
 
 
@@ -515,6 +516,7 @@ def build(cfg: dict) -> Setup:
         maxwell_rotation=cfg["numerics.maxwell_rotation"],
         wall_yield=cfg["numerics.wall_yield"],
         formulation=cfg["model.formulation"],
+        bed_curvature=cfg["model.bed_curvature"],
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],

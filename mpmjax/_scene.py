@@ -12,6 +12,7 @@ strain, and 2D masses and volumes are per metre of depth (kg/m, m^2).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -56,7 +57,9 @@ class Terrain:
     inward normal velocity is removed) or ``coulomb`` (as slip, and the tangential speed is
     reduced by ``friction`` times the removed normal speed, to zero at most: Coulomb
     friction with coefficient ``friction``, the usual MPM contact form).  Particles below
-    the surface are lifted onto it.
+    the surface are lifted onto it.  ``voellmy`` (depth-averaged formulation only): Coulomb
+    friction ``friction`` plus Voellmy's turbulent drag rho g u^2 / ``turbulence`` [m/s^2] in the
+    basal shear (``_shallow``).
 
     origin: first sample position (x0[, y0]) [m]; spacing: sample spacing per horizontal
     axis [m]; heights: z_b samples [m], nested tuples in (x[, y]) order.
@@ -67,6 +70,7 @@ class Terrain:
     heights: tuple
     kind: str
     friction: float = 0.0
+    turbulence: float = math.inf
 
     def height(self, xy, xp=np):
         """z_b [m] at horizontal positions ``xy`` (n, dim - 1); clamped outside the map."""
@@ -184,6 +188,8 @@ class Scene:
         yield stress; ``_wall_yield``).
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
         ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
+      bed_curvature: depth-averaged only: ``centrifugal`` (the bed's curvature u.K.u in the columns'
+        bed-normal gravity) or ``none`` (``_shallow``, step 2).
     """
 
     dim: int
@@ -221,6 +227,7 @@ class Scene:
     maxwell_rotation: str = "lag"
     formulation: str = "full"
     wall_yield: str = "wall"
+    bed_curvature: str = "centrifugal"
 
     @property
     def n_nodes(self) -> int:

@@ -21,7 +21,13 @@ ghost layers and box faces as in the full step).  One step:
    vertical component; c^2 = 1 / (1 + |grad z_b|^2) = cos^2 of the terrain's slope: the bed-normal
    gravity g_n cos(theta) acting on the bed-normal depth H cos(theta) (so a block on a frictionless
    DEM plane slides with the exact g sin(theta) along it).  Integrated by parts, the two are
-   -rho g_n c^2 H grad(z_b + H): a lake at rest has no net force up to the quadrature;
+   -rho g_n c^2 H grad(z_b + H): a lake at rest has no net force up to the quadrature.  On a curved
+   bed (``model.bed_curvature = "centrifugal"``, the default) g_n is the column's effective vertical
+   gravity g_v = max(g_n + u.K.u, 0), K = grad grad z_b (the gradient of the nodes' slopes at the
+   particle): the vertical acceleration of a column that follows the bed, as Savage-Hutter type
+   models on curved beds carry it (a point mass on a frictionless bed z_b then moves as a bead on a
+   wire; tests/test_depth_averaged_bed.py).  It enters the slope force, the pressure and the
+   Coulomb part's normal stress (step 4);
 3. P2G (APIC): nodal mass, momentum sum_p w_ip m_p (u_p + C_p (x_i - X_p) + dt a_p) and the
    internal variables (mass-weighted); u* = momentum / mass;
 4. basal shear on the nodes (``_basal``): tau_b = tau_0 + c U at the node's bed speed U and
@@ -29,8 +35,10 @@ ghost layers and box faces as in the full step).  One step:
    (1 + dt c' / (rho H)): the yield (and Coulomb) part tau_0 capped so that it can stop a node but
    never reverse it (a layer stays at rest while rho g_n H |grad(z_b + H)| c^2 <= tau_0 / ...,
    exactly: h = tau_y / (rho g sin(theta)) on an incline), the viscous part implicit (stable for
-   any viscosity and depth); c' = c U / |u| turns the bed speed into the plan speed; then the box
-   walls (slip, symmetry: no normal velocity; noslip: none);
+   any viscosity and depth); c' = c U / |u| turns the bed speed into the plan speed; with
+   ``terrain.type = "voellmy"`` the Coulomb part mu sigma_n is in tau_0 and Voellmy's drag
+   rho |g| U^2 / xi in c (c += rho |g| U / xi at the node's bed speed); then the box walls (slip,
+   symmetry: no normal velocity; noslip: none);
 5. G2P (APIC): u_p, C_p; X_p += dt u_p; particles behind a box wall are put back on it;
 6. the law's internal variables advanced at the basal shear rate 3 U_p / h_n,p of the particle
    (``Law.viscosity``: for Coussot the exact exponential lambda update); ``state.mu``: the law's
@@ -40,7 +48,7 @@ ghost layers and box faces as in the full step).  One step:
    maps and hazard maps read a depth-averaged state as they read a 3-D one; J stays 1 and the
    deviatoric stress 0.
 
-Not here (docs/depth-averaged.md, "Missing"): curvature (centrifugal) terms of the bed, the
+Not here (docs/depth-averaged.md, "Missing"): the
 earth-pressure coefficient of granular Savage-Hutter flows (the pressure is hydrostatic, K = 1),
 extra planes, periodic faces, pipe inflow, the aging gate and device sharding.
 """
@@ -178,7 +186,11 @@ def make_shallow_step(scene: Scene):
     zb_np, grad_np = bed(scene)
     faces = _mirror(scene)
     terrain = scene.terrain
-    friction = float(terrain.friction) if terrain is not None and terrain.kind == "coulomb" else 0.0
+    kind = terrain.kind if terrain is not None else "none"
+    friction = float(terrain.friction) if kind in ("coulomb", "voellmy") else 0.0
+    turbulence = float(terrain.turbulence) if kind == "voellmy" else math.inf
+    # the bed's curvature term (step 2): only where the bed can be curved
+    curved = scene.bed_curvature == "centrifugal" and terrain is not None
     # box walls on the plan axes: (axis, side, kind, node mask behind or on the wall)
     xn = plan_nodes(scene)
     walls = []
@@ -219,9 +231,17 @@ def make_shallow_step(scene: Scene):
         grad_zb = jnp.sum(st.gather(zb)[..., None] * st.dw, axis=1)  # (n, k)
         c2 = 1.0 / (1.0 + jnp.sum(grad_zb * grad_zb, axis=1))
         H_p = jnp.sum(st.w * st.gather(H), axis=1)
-        a = g_t[None, :] - (g_n * c2)[:, None] * grad_zb
+        if curved:
+            # the vertical acceleration of a column following the bed, u.K.u (K = grad grad z_b, the gradient of the
+            # nodes' slopes), adds to the vertical gravity: g_v = g_n + u.K.u, never below zero (a column leaving a
+            # convex bed presses on it with nothing)
+            K = jnp.einsum("pna,pnb->pab", st.gather(gzb), st.dw)
+            g_v = jnp.maximum(g_n + jnp.einsum("pa,pab,pb->p", u, 0.5 * (K + jnp.swapaxes(K, 1, 2)), u), 0.0)
+        else:
+            g_v = jnp.broadcast_to(g_n, c2.shape)
+        a = g_t[None, :] - (g_v * c2)[:, None] * grad_zb
         m = rho * V
-        push = 0.5 * g_n * c2 * m * H_p  # rho g_n c^2 V H / 2: the column's depth-integrated pressure x area
+        push = 0.5 * g_v * c2 * m * H_p  # rho g_v c^2 V H / 2: the column's depth-integrated pressure x area
 
         # 3. P2G: mass, momentum with the driving impulse, internal variables
         affine = jnp.einsum("pab,pnb->pna", C, st.off)  # C (x_i - X_p): (n, S^k, k)
@@ -229,12 +249,16 @@ def make_shallow_step(scene: Scene):
         contrib = contrib + dt * push[:, None, None] * st.dw
         mom = jnp.zeros((n_nodes, k), dtp).at[st.idx.reshape(-1)].add(contrib.reshape(-1, k))
         chans = [m[:, None]] + [(m * state.internal[nm])[:, None] for nm in names]
+        normal_g = curved and friction > 0.0  # the nodes' bed-normal gravity from the particles' (Coulomb part)
+        if normal_g:
+            chans.append((m * g_v)[:, None])
         grid = st.scatter(jnp.concatenate(chans, axis=1), n_nodes)
         mass = grid[:, 0]
         has = mass > m_empty * rho
         inv_m = jnp.where(has, 1.0 / jnp.where(has, mass, 1.0), 0.0)
         u_star = mom * inv_m[:, None]
         internal_n = {nm: grid[:, 1 + i] * inv_m for i, nm in enumerate(names)}
+        g_vn = grid[:, -1] * inv_m if normal_g else g_n
 
         # 4. basal shear on the nodes: capped yield part, implicit viscous part
         speed = _safe_norm(u_star)
@@ -243,8 +267,10 @@ def make_shallow_step(scene: Scene):
         cos_n = 1.0 / jnp.sqrt(1.0 + jnp.sum(gzb * gzb, axis=1))
         H_safe = jnp.where(has, jnp.maximum(H, 1e-12), 1.0)
         h_n = H_safe * cos_n
-        sigma_n = rho * g_n * cos_n * h_n  # bed-normal stress of the column [Pa] (Coulomb part)
+        sigma_n = rho * g_vn * cos_n * h_n  # bed-normal stress of the column [Pa] (Coulomb part)
         tau_0, c_bed, _ = _basal.closure(law, mat, bed_speed, h_n, internal_n, sigma_n, friction)
+        if math.isfinite(turbulence):  # Voellmy's drag rho g U^2 / xi = c U, c = rho g U / xi (implicit like the rest)
+            c_bed = c_bed + rho * jnp.sqrt(jnp.sum(params.gravity * params.gravity)) * bed_speed / turbulence
         c_plan = c_bed * jnp.where(speed > 0, bed_speed / jnp.where(speed > 0, speed, 1.0), 1.0)
         inv_rh = 1.0 / (rho * H_safe)
         reduced = jnp.maximum(speed - dt * tau_0 * inv_rh, 0.0) / (1.0 + dt * c_plan * inv_rh)

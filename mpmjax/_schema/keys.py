@@ -46,6 +46,17 @@ _HEAD: dict[str, Key] = {
         "numerics.devices > 1, boundary-modified shapes, or the full model's volume and pressure options.",
         choices=("full", "depth-averaged"),
     ),
+    "model.bed_curvature": Key(
+        str,
+        "centrifugal",
+        "-",
+        "Depth-averaged formulation only: the bed's curvature in the columns' bed-normal gravity. centrifugal: "
+        "g_n + u.K.u (K the terrain's Hessian, u the plan velocity; a column following a concave bed presses "
+        "harder on it, a convex one lighter, never below zero), in the bed-slope force, the hydrostatic pressure "
+        "and the Coulomb / Voellmy normal stress, as Savage-Hutter type models on curved beds do; none: gravity "
+        "alone (the form before 2026-12-05). No effect on a plane bed.",
+        choices=("centrifugal", "none"),
+    ),
     "domain.dim": Key(int, 2, "-", "Dimension: 2 (plane strain, per metre of depth) or 3.", choices=(2, 3)),
     "domain.lo_m": Key("vec", _REQ, "m", "Lower corner of the domain box (walls lie on its faces)."),
     "domain.hi_m": Key("vec", _REQ, "m", "Upper corner of the domain box."),
@@ -322,8 +333,10 @@ _TAIL: dict[str, Key] = {
         "none",
         "-",
         "Height-map boundary z = z_b(x[, y]) (bilinear between samples; nodes below it get the condition): "
-        "none, noslip, slip or coulomb (slip with Coulomb friction).",
-        choices=("none", "noslip", "slip", "coulomb"),
+        "none, noslip, slip, coulomb (slip with Coulomb friction) or voellmy (depth-averaged formulation only: "
+        "the Coulomb friction terrain.friction plus the turbulent drag rho g u^2 / terrain.turbulence_m_s2, "
+        "added to the law's basal shear).",
+        choices=("none", "noslip", "slip", "coulomb", "voellmy"),
     ),
     "terrain.heights_m": Key(
         "table-list",
@@ -343,7 +356,19 @@ _TAIL: dict[str, Key] = {
     "terrain.spacing_m": Key(
         float, 1.0, "m", "Terrain: sample spacing along each horizontal axis.", lo=0.0, lo_open=True
     ),
-    "terrain.friction": Key(float, 0.0, "-", "Terrain: Coulomb friction coefficient (type coulomb).", lo=0.0, hi=10.0),
+    "terrain.friction": Key(
+        float, 0.0, "-", "Terrain: Coulomb friction coefficient (type coulomb or voellmy).", lo=0.0, hi=10.0
+    ),
+    "terrain.turbulence_m_s2": Key(
+        float,
+        200.0,
+        "m/s^2",
+        "Terrain type voellmy: the turbulence coefficient xi of Voellmy's basal drag rho g u^2 / xi (RAMMS's "
+        "starting value for debris flows: 200; larger is less drag).",
+        lo=0.0,
+        lo_open=True,
+        hi=1e6,
+    ),
     "terrain.dem": Key(
         str,
         "",

@@ -220,7 +220,7 @@ def _validate_terrain(out: dict, dim: int, lo, flat: dict):
         if given:
             raise SceneError(
                 f"{given[0]} = {_show(flat[given[0]])} is invalid with terrain.type = 'none'; allowed: "
-                "set terrain.type (noslip, slip or coulomb) to use a DEM"
+                "set terrain.type (noslip, slip, coulomb or voellmy) to use a DEM"
             )
         return
     sources = [k for k in ("terrain.heights_m", "terrain.csv", "terrain.dem") if out[k]]
@@ -678,8 +678,21 @@ _DA_FIXED = {
 
 
 def _validate_formulation(out: dict, dim: int):
-    """model.formulation = "depth-averaged" (``_shallow``): refuse what that step does not do."""
+    """model.formulation = "depth-averaged" (``_shallow``): refuse what that step does not do, and in the full
+    model what only that step does (Voellmy's drag, the bed's curvature term)."""
     if out["model.formulation"] != "depth-averaged":
+        if out["terrain.type"] == "voellmy":
+            raise SceneError(
+                "terrain.type = 'voellmy' is invalid with model.formulation = 'full': Voellmy's drag is a basal "
+                "closure of the depth-averaged formulation; allowed: none, noslip, slip, coulomb, or "
+                "model.formulation = 'depth-averaged'"
+            )
+        if out["model.bed_curvature"] != "centrifugal":
+            raise SceneError(
+                f"model.bed_curvature = {_show(out['model.bed_curvature'])} is invalid with model.formulation = "
+                "'full': the full model follows the bed's curvature itself; allowed: unset, or "
+                "model.formulation = 'depth-averaged'"
+            )
         return
     why = "(model.formulation = 'depth-averaged': docs/depth-averaged.md, 'Missing')"
     for key, val in _DA_FIXED.items():
