@@ -63,12 +63,12 @@ def shear_rate(speed, depth_n):
     return 3.0 * jnp.maximum(speed, U_EPS) / depth_n
 
 
-def closure(law, params, speed, depth_n, internal, normal_stress=None, friction: float = 0.0):
+def closure(law, params, speed, depth_n, internal, normal_stress=None, friction=None):
     """(tau_0 [Pa], c [Pa s/m], mu [Pa s]) of the basal shear at bed speed ``speed`` [m/s] and
     bed-normal depth ``depth_n`` [m] (> 0) with the law's internal variables ``internal``:
     tau_b = tau_0 + c U (module docstring); mu: the law's effective viscosity at gamma_b (without
-    its yield part), for the outputs.  ``friction``: a Coulomb coefficient mu_c (static), adding
-    mu_c ``normal_stress`` [Pa] to tau_0."""
+    its yield part), for the outputs.  ``friction``: a Coulomb coefficient mu_c (traced; None: no
+    Coulomb part), adding mu_c ``normal_stress`` [Pa] to tau_0."""
     u = jnp.maximum(speed, U_EPS)
     rate = shear_rate(u, depth_n)
     yield_ = has_yield(law)
@@ -81,6 +81,6 @@ def closure(law, params, speed, depth_n, internal, normal_stress=None, friction:
     else:
         tau_0 = jnp.zeros_like(tau_v)
         excess = tau_v
-    if friction > 0.0:
+    if friction is not None:
         tau_0 = tau_0 + friction * normal_stress
     return tau_0, excess / u, mu

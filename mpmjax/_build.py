@@ -26,7 +26,7 @@ import numpy as np
 
 from . import _bodies, _constitutive, _dem, _release, _rheology, _shallow, _shapes
 from ._boundary import inflow_layout
-from ._scene import WALL_KINDS, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
+from ._scene import WALL_KINDS, Basal, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
 from ._shard import use_devices
 from ._slab import check as slab_check
@@ -49,7 +49,11 @@ def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
         gv = [g * math.sin(th), -g * math.cos(th)]
     else:
         gv = [g * math.sin(th), g * math.sin(ph), -g * math.cos(th) * math.cos(ph)]
-    return Params(material=mat, gravity=jnp.asarray(gv, dt))
+    basal = None
+    if cfg["model.formulation"] == "depth-averaged" and cfg["terrain.type"] in ("coulomb", "voellmy"):
+        xi = cfg["terrain.turbulence_m_s2"] if cfg["terrain.type"] == "voellmy" else math.inf
+        basal = Basal(friction=a("terrain.friction"), turbulence=jnp.asarray(xi, dt))
+    return Params(material=mat, gravity=jnp.asarray(gv, dt), basal=basal)
 
 
 def make_rheology(cfg: dict):

@@ -281,11 +281,23 @@ def ghost_cells(shape: str) -> int:
     return int(np.ceil(_shapes.SUPPORT[shape])) + 1
 
 
+class Basal(NamedTuple):
+    """Traced basal friction of the depth-averaged formulation on a ``coulomb`` or ``voellmy``
+    terrain (``_shallow``): the Coulomb coefficient [-] (``terrain.friction``) and Voellmy's
+    turbulence coefficient xi [m/s^2] (``terrain.turbulence_m_s2``; inf on a ``coulomb`` terrain)."""
+
+    friction: jnp.ndarray
+    turbulence: jnp.ndarray
+
+
 class Params(NamedTuple):
-    """Traced parameters: the rheology's NamedTuple and the gravity vector [m/s^2]."""
+    """Traced parameters: the rheology's NamedTuple, the gravity vector [m/s^2] and, for a depth-averaged
+    scene on a ``coulomb`` or ``voellmy`` terrain, its ``Basal`` friction (None otherwise), so that
+    ``jax.grad``, ``vmap`` and a fit can take the friction too."""
 
     material: Any
     gravity: jnp.ndarray
+    basal: Any = None
 
 
 class State(NamedTuple):

@@ -176,6 +176,16 @@ def _safe_norm(u, axis=-1):
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, q, 1.0)), 0.0)
 
 
+def _basal_params(params: Params):
+    """``params.basal``, which a depth-averaged scene on a coulomb or voellmy terrain needs (``make_params``)."""
+    if params.basal is None:
+        raise ValueError(
+            "params.basal is None, but the scene's terrain is coulomb or voellmy: build the parameters with "
+            "mpmjax.make_params (or set Params.basal = Basal(friction, turbulence))"
+        )
+    return params.basal
+
+
 def make_shallow_step(scene: Scene):
     """The pure step ``step(state, params) -> state`` of a depth-averaged scene (module docstring)."""
     k = plan_dims(scene)
@@ -187,8 +197,9 @@ def make_shallow_step(scene: Scene):
     faces = _mirror(scene)
     terrain = scene.terrain
     kind = terrain.kind if terrain is not None else "none"
-    friction = float(terrain.friction) if kind in ("coulomb", "voellmy") else 0.0
-    turbulence = float(terrain.turbulence) if kind == "voellmy" else math.inf
+    # the Coulomb part and Voellmy's drag: static switches here, their coefficients traced (params.basal)
+    frictional = kind in ("coulomb", "voellmy")
+    voellmy = kind == "voellmy"
     # the bed's curvature term (step 2): only where the bed can be curved
     curved = scene.bed_curvature == "centrifugal" and terrain is not None
     # box walls on the plan axes: (axis, side, kind, node mask behind or on the wall)
@@ -249,7 +260,7 @@ def make_shallow_step(scene: Scene):
         contrib = contrib + dt * push[:, None, None] * st.dw
         mom = jnp.zeros((n_nodes, k), dtp).at[st.idx.reshape(-1)].add(contrib.reshape(-1, k))
         chans = [m[:, None]] + [(m * state.internal[nm])[:, None] for nm in names]
-        normal_g = curved and friction > 0.0  # the nodes' bed-normal gravity from the particles' (Coulomb part)
+        normal_g = curved and frictional  # the nodes' bed-normal gravity from the particles' (Coulomb part)
         if normal_g:
             chans.append((m * g_v)[:, None])
         grid = st.scatter(jnp.concatenate(chans, axis=1), n_nodes)
@@ -263,14 +274,16 @@ def make_shallow_step(scene: Scene):
         # 4. basal shear on the nodes: capped yield part, implicit viscous part
         speed = _safe_norm(u_star)
         slope_u = jnp.sum(u_star * gzb, axis=1)
-        bed_speed = jnp.sqrt(speed * speed + slope_u * slope_u)
+        bed_speed = _safe_norm(jnp.concatenate([u_star, slope_u[:, None]], axis=1))  # finite derivative at rest
         cos_n = 1.0 / jnp.sqrt(1.0 + jnp.sum(gzb * gzb, axis=1))
         H_safe = jnp.where(has, jnp.maximum(H, 1e-12), 1.0)
         h_n = H_safe * cos_n
         sigma_n = rho * g_vn * cos_n * h_n  # bed-normal stress of the column [Pa] (Coulomb part)
+        friction = _basal_params(params).friction if frictional else None
         tau_0, c_bed, _ = _basal.closure(law, mat, bed_speed, h_n, internal_n, sigma_n, friction)
-        if math.isfinite(turbulence):  # Voellmy's drag rho g U^2 / xi = c U, c = rho g U / xi (implicit like the rest)
-            c_bed = c_bed + rho * jnp.sqrt(jnp.sum(params.gravity * params.gravity)) * bed_speed / turbulence
+        if voellmy:  # Voellmy's drag rho g U^2 / xi = c U, c = rho g U / xi (implicit like the rest)
+            xi = _basal_params(params).turbulence
+            c_bed = c_bed + rho * jnp.sqrt(jnp.sum(params.gravity * params.gravity)) * bed_speed / xi
         c_plan = c_bed * jnp.where(speed > 0, bed_speed / jnp.where(speed > 0, speed, 1.0), 1.0)
         inv_rh = 1.0 / (rho * H_safe)
         reduced = jnp.maximum(speed - dt * tau_0 * inv_rh, 0.0) / (1.0 + dt * c_plan * inv_rh)
@@ -301,7 +314,7 @@ def make_shallow_step(scene: Scene):
         hn_p = jnp.maximum(H_p, 1e-12) * cos_p
         sp = _safe_norm(u_new)
         su = jnp.sum(u_new * grad_zb, axis=1)
-        U_p = jnp.sqrt(sp * sp + su * su)
+        U_p = _safe_norm(jnp.stack([sp, su], axis=1))
         rate = _basal.shear_rate(U_p, hn_p)
         _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate)
         _, _, mu = _basal.closure(law, mat, U_p, hn_p, internal)
