@@ -40,14 +40,6 @@ from mpmjax._simulate import simulate
 G = 9.81
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _x64():
-    prev = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
-    yield
-    jax.config.update("jax_enable_x64", prev)
-
-
 _run = jax.jit(simulate, static_argnums=(0, 3))
 
 # ------------------------------------------------------------------------------------- the bowl
@@ -173,9 +165,9 @@ def test_a_column_orbiting_in_a_paraboloid_bowl_follows_the_exact_path():
 TH = math.radians(30.0)
 
 
-def _plane(kind: str, mu_c: float, xi: float = 200.0):
-    """A 2 m long, 0.1 m (vertical) deep layer released at rest on a 30 degree DEM plane: the plan speed
-    of its middle column at 0.1 ... 0.5 s."""
+def _plane_layer(kind: str, mu_c: float, xi: float = 200.0, n_frames: int = 5):
+    """The built scene of a 2 m long, 0.1 m (vertical) deep layer released at rest on a 30 degree DEM
+    plane, to 0.5 s."""
     xs = np.arange(0.0, 6.0 + 1e-9, 0.01)
     raw = {
         "model": {"formulation": "depth-averaged"},
@@ -191,10 +183,15 @@ def _plane(kind: str, mu_c: float, xi: float = 200.0):
             "friction": mu_c,
             **({"turbulence_m_s2": xi} if kind == "voellmy" else {}),
         },
-        "time": {"t_end_s": 0.5, "n_frames": 5},
+        "time": {"t_end_s": 0.5, "n_frames": n_frames},
         "bodies": [{"type": "box", "lo_m": [0.0, 3.6], "hi_m": [2.0, 3.7]}],
     }
-    s = build(validate(raw))
+    return build(validate(raw))
+
+
+def _plane(kind: str, mu_c: float, xi: float = 200.0):
+    """The layer of ``_plane_layer``: the plan speed of its middle column at 0.1 ... 0.5 s."""
+    s = _plane_layer(kind, mu_c, xi)
     _, frames = _run(s.scene, s.state, s.params)
     n = frames.v.shape[1]
     return np.asarray(frames.t), np.asarray(frames.v[:, n // 2, 0])
@@ -221,25 +218,7 @@ def test_the_friction_coefficients_are_traced_and_differentiable():
     exact tanh's derivatives within 1 % (measured -2.80777 against -2.80839 per unit mu, 7.5419e-4
     against 7.5303e-4 s per m/s^2 of xi, with the model's own 2.6e-4 error).  Reverse mode read NaN on
     any DEM slope before the bed speed's norm was made safe at rest (2026-12-05)."""
-    xs = np.arange(0.0, 6.0 + 1e-9, 0.01)
-    raw = {
-        "model": {"formulation": "depth-averaged"},
-        "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [6.0, 4.0], "cell_size_m": 0.01},
-        "boundary": {"x_lo": "open", "x_hi": "open"},
-        "numerics": {"shape": "quadratic", "ppc": 2, "dtype": "float64"},
-        "material": {"model": "newtonian", "viscosity_pa_s": 1e-12, "density_kg_m3": 1000.0, "bulk_modulus_pa": 1e5},
-        "terrain": {
-            "type": "voellmy",
-            "heights_m": list((6.0 - xs) * math.tan(TH)),
-            "origin_m": [0.0],
-            "spacing_m": 0.01,
-            "friction": 0.2,
-            "turbulence_m_s2": 200.0,
-        },
-        "time": {"t_end_s": 0.5, "n_frames": 1},
-        "bodies": [{"type": "box", "lo_m": [0.0, 3.6], "hi_m": [2.0, 3.7]}],
-    }
-    s = build(validate(raw))
+    s = _plane_layer("voellmy", 0.2, 200.0, n_frames=1)
     mid = s.scene.n_particles // 2
 
     def speed(b):
