@@ -367,6 +367,8 @@ def test_voellmy_and_the_curvature_key_belong_to_the_depth_averaged_formulation(
     raw["model"] = {"bed_curvature": "none"}
     with pytest.raises(SceneError, match=r"model.bed_curvature = 'none' is invalid with model.formulation = 'full'"):
         validate(raw)
+    with pytest.raises(SceneError, match=r"terrain.turbulence_m_s2 = 100.0 is invalid with terrain.type = 'coulomb'"):
+        validate(_full(type="coulomb", turbulence_m_s2=100.0))
     raw = _full(type="voellmy", turbulence_m_s2=0.0)
     raw["model"] = {"formulation": "depth-averaged"}
     with pytest.raises(SceneError, match=r"terrain.turbulence_m_s2"):

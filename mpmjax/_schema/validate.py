@@ -215,6 +215,12 @@ _DEM_ONLY = ("terrain.crop_map_m", "terrain.resample", "terrain.crs")
 
 def _validate_terrain(out: dict, dim: int, lo, flat: dict):
     kind = out["terrain.type"]
+    if "terrain.turbulence_m_s2" in flat and kind != "voellmy":
+        raise SceneError(
+            f"terrain.turbulence_m_s2 = {_show(flat['terrain.turbulence_m_s2'])} is invalid with terrain.type = "
+            f"{kind!r}: it is Voellmy's drag coefficient; allowed: terrain.type = 'voellmy' "
+            "(model.formulation = 'depth-averaged'), or unset"
+        )
     if kind == "none":
         given = [k for k in ("terrain.dem", *_DEM_ONLY) if k in flat]
         if given:
