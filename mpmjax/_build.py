@@ -338,25 +338,29 @@ def memory_estimate(cfg: dict) -> dict:
       plus, on the CPU backend, ``device_bytes``.
 
     Particles: the sum of the bodies' lattice counts (an upper bound: overlaps are seeded once)
-    plus a pipe inflow's pool, plus a breach release's geometric volume / (h / ppc)^dim."""
+    plus a pipe inflow's pool, plus a breach release's geometric volume / (h / ppc)^dim.  With the
+    depth-averaged formulation the particles are columns (a box's plan lattice count, the release's
+    wet columns) and the grid is the plan's, so neither is counted over the vertical."""
     dim = cfg["domain.dim"]
+    shallow = cfg["model.formulation"] == "depth-averaged"
+    k = dim - 1 if shallow else dim  # the axes the particles and the grid span
     item = 8 if cfg["numerics.dtype"] == "float64" else 4
     dx = cfg["domain.cell_size_m"] / cfg["numerics.ppc"]
     n = 0.0
     for b in cfg["bodies"]:
         if _bodies.kind(b) == "box":
             counts = np.maximum(np.round((np.asarray(b["hi_m"]) - np.asarray(b["lo_m"])) / dx), 1.0)
-            n += float(np.prod(counts))
+            n += float(np.prod(counts[:k]))
         else:
             n += _bodies.lattice_count_bound(cfg, b)
     if cfg["inflow.point_m"] is not None:
         n += float(inflow_layout(cfg, dim)[2])
-    if cfg["release.region_map_m"] is not None:  # about one particle per dx^dim of pond
+    if cfg["release.region_map_m"] is not None:  # about one particle per dx^dim of pond (one per column: shallow)
         ter = terrain_of(cfg)
         floor = float(cfg["domain.lo_m"][-1])
         height = ter.height if ter is not None else (lambda xy: np.full(len(xy), floor))
-        n += _release.geometric_volume(cfg, height) / dx**dim
-    nodes = float(np.prod(np.asarray(_grid_shape(cfg), float)))
+        n += _release.wet_columns(cfg, height) if shallow else _release.geometric_volume(cfg, height) / dx**dim
+    nodes = float(np.prod(np.asarray(_grid_shape(cfg), float)[:k]))
     n_internal = len(_rheology.MODELS[cfg["material.model"]].internals)
     state_per_particle = (2 * dim + 2 * dim * dim + 3 + n_internal) * item + 2  # x v C tau J vol0 mu internal; bools
     stencil = _shapes.STENCIL[cfg["numerics.shape"]] ** dim

@@ -143,6 +143,17 @@ def seed_release(cfg: dict, height, bodies=()) -> tuple[np.ndarray, np.ndarray, 
     return x, vol, info
 
 
+def wet_columns(cfg: dict, height) -> int:
+    """How many of the release's particle columns (spacing h / ppc) have the pond above the terrain: the
+    particles the depth-averaged formulation seeds for it (one a column), for the memory estimate."""
+    dim, h, ppc = cfg["domain.dim"], cfg["domain.cell_size_m"], cfg["numerics.ppc"]
+    poly = region_polygon(cfg["release.region_map_m"], cfg["terrain.map_origin_m"], dim)
+    xy = _columns(poly, cfg["domain.lo_m"][: dim - 1], cfg["domain.hi_m"][: dim - 1], h / ppc)
+    if not len(xy):
+        return 0
+    return int(np.count_nonzero(float(cfg["release.pond_level_m"]) > np.asarray(height(xy), float)))
+
+
 def geometric_volume(cfg: dict, height) -> float:
     """The volume [m^3; 2D: m^2] between the terrain and the pond level over the region: the
     integral of max(0, pond - z_b) on columns ``GEOMETRIC_SUBDIVISION`` times finer per axis
