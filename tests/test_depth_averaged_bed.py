@@ -217,7 +217,8 @@ def test_the_friction_coefficients_are_traced_and_differentiable():
     Voellmy layer at 0.5 s by reverse mode equal forward mode and a central difference (1e-6), and the
     exact tanh's derivatives within 1 % (measured -2.80777 against -2.80839 per unit mu, 7.5419e-4
     against 7.5303e-4 s per m/s^2 of xi, with the model's own 2.6e-4 error).  Reverse mode read NaN on
-    any DEM slope before the bed speed's norm was made safe at rest (2026-12-05)."""
+    this DEM plane (for the viscosity too) before the bed speed's norm was made safe at rest
+    (2026-12-05)."""
     s = _plane_layer("voellmy", 0.2, 200.0, n_frames=1)
     mid = s.scene.n_particles // 2
 
