@@ -4,7 +4,7 @@ Public API (modules are private; names are re-exported here):
 
 * scenes: ``load_scene``, ``validate`` (nested dict -> flat validated dict), ``build``,
   ``builtin_scenes``, ``SceneError``, ``SCHEMA``
-* the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params``, ``init_state``;
+* the step: ``make_step``, ``make_p2g``, ``Scene``, ``State``, ``Params`` (with ``Basal``), ``init_state``;
   ``flat_transfers`` (a context for forward-mode Jacobians on the CPU)
 * time integration: ``simulate``, ``run``, ``make_advance``, ``Frame``; chunked host-side
   stepping: ``make_steps`` (any number of steps, one program), ``Pacer``, ``run_chunked``,
@@ -67,7 +67,7 @@ from ._rheology import (
     law_of,
 )
 from ._rheology import parameters as material_parameters
-from ._scene import Gate, Params, Scene, State, Wall, init_state, restate
+from ._scene import Basal, Gate, Params, Scene, State, Wall, init_state, restate
 from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
 from ._simulate import Frame, Pacer, chunkable, make_advance, make_chunk, make_steps, run, run_chunked, simulate
 from ._step import make_step
@@ -119,6 +119,7 @@ __all__ = [
     "NewtonianParams",
     "Gate",
     "Params",
+    "Basal",
     "Scene",
     "State",
     "Wall",

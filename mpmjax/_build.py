@@ -161,7 +161,6 @@ def terrain_of(cfg: dict) -> Terrain | None:
         heights=tuple(map(tuple, hs)) if hs.ndim == 2 else tuple(map(float, hs)),
         kind=cfg["terrain.type"],
         friction=float(cfg["terrain.friction"]),
-        turbulence=float(cfg["terrain.turbulence_m_s2"]) if cfg["terrain.type"] == "voellmy" else math.inf,
     )
 
 

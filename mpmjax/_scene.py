@@ -12,7 +12,6 @@ strain, and 2D masses and volumes are per metre of depth (kg/m, m^2).
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -58,8 +57,8 @@ class Terrain:
     reduced by ``friction`` times the removed normal speed, to zero at most: Coulomb
     friction with coefficient ``friction``, the usual MPM contact form).  Particles below
     the surface are lifted onto it.  ``voellmy`` (depth-averaged formulation only): Coulomb
-    friction ``friction`` plus Voellmy's turbulent drag rho g u^2 / ``turbulence`` [m/s^2] in the
-    basal shear (``_shallow``).
+    friction plus Voellmy's turbulent drag in the basal shear, both coefficients traced
+    (``Params.basal``, ``_shallow``); ``friction`` here is the full model's static coefficient.
 
     origin: first sample position (x0[, y0]) [m]; spacing: sample spacing per horizontal
     axis [m]; heights: z_b samples [m], nested tuples in (x[, y]) order.
@@ -70,7 +69,6 @@ class Terrain:
     heights: tuple
     kind: str
     friction: float = 0.0
-    turbulence: float = math.inf
 
     def height(self, xy, xp=np):
         """z_b [m] at horizontal positions ``xy`` (n, dim - 1); clamped outside the map."""

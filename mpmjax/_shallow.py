@@ -181,7 +181,7 @@ def _basal_params(params: Params):
     if params.basal is None:
         raise ValueError(
             "params.basal is None, but the scene's terrain is coulomb or voellmy: build the parameters with "
-            "mpmjax.make_params (or set Params.basal = Basal(friction, turbulence))"
+            "mpmjax.make_params (or set Params.basal = mpmjax.Basal(friction, turbulence))"
         )
     return params.basal
 
@@ -279,11 +279,11 @@ def make_shallow_step(scene: Scene):
         H_safe = jnp.where(has, jnp.maximum(H, 1e-12), 1.0)
         h_n = H_safe * cos_n
         sigma_n = rho * g_vn * cos_n * h_n  # bed-normal stress of the column [Pa] (Coulomb part)
-        friction = _basal_params(params).friction if frictional else None
-        tau_0, c_bed, _ = _basal.closure(law, mat, bed_speed, h_n, internal_n, sigma_n, friction)
+        basal = _basal_params(params) if frictional else None
+        mu_c = None if basal is None else basal.friction
+        tau_0, c_bed, _ = _basal.closure(law, mat, bed_speed, h_n, internal_n, sigma_n, mu_c)
         if voellmy:  # Voellmy's drag rho g U^2 / xi = c U, c = rho g U / xi (implicit like the rest)
-            xi = _basal_params(params).turbulence
-            c_bed = c_bed + rho * jnp.sqrt(jnp.sum(params.gravity * params.gravity)) * bed_speed / xi
+            c_bed = c_bed + rho * jnp.sqrt(jnp.sum(params.gravity * params.gravity)) * bed_speed / basal.turbulence
         c_plan = c_bed * jnp.where(speed > 0, bed_speed / jnp.where(speed > 0, speed, 1.0), 1.0)
         inv_rh = 1.0 / (rho * H_safe)
         reduced = jnp.maximum(speed - dt * tau_0 * inv_rh, 0.0) / (1.0 + dt * c_plan * inv_rh)
