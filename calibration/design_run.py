@@ -200,7 +200,7 @@ def run_design(
     cfg0, overrides = _scene_overrides(scene, overrides, times, init)
     setup = mpmjax.build(mpmjax.load_scene(scene, overrides))
     h = setup.scene.h
-    pset = ParameterSet.from_names(names, setup.params.material, init=init)
+    pset = ParameterSet.from_names(names, setup.params, init=init)
     theta = {k: pset.specs[k].init for k in pset.free}
     bw = bandwidth_m
     current = [ProfileExperiment(setup, profiles, bandwidth_m=bw, sigma_m=sigma_m, name=Path(data).name)]

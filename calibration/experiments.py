@@ -130,22 +130,29 @@ class _SceneExperiment:
         """The material at the fitted ``values``; after a rest of t_rest, the initial structure
         is lambda_rest + t_rest / T (Coussot aging at rest, dlambda/dt = 1/T), lambda_rest
         defaulting to the material's lambda0, so T's (and lambda0's) gradient flows through it."""
-        base = self.setup.params.material
+        return self.params(values).material
+
+    def params(self, values: dict):
+        """The scene's ``Params`` at the fitted ``values`` (material and, on a depth-averaged
+        scene's coulomb or voellmy terrain, basal friction), the structure after a rest applied
+        as in :meth:`material`."""
+        base = self.setup.params
         dt = jnp.dtype(self.setup.scene.dtype)
-        bad = [k for k in values if k not in type(base)._fields]
-        if bad:
-            raise ValueError(f"{self.name}: {bad} are not fields of {type(base).__name__}")
-        mat = base._replace(**{k: jnp.asarray(v, dt) for k, v in values.items()})
+        try:
+            p = mpmjax.replace_parameters(base, values, dt)
+        except ValueError as e:
+            raise ValueError(f"{self.name}: {e}") from None
         if self.rest_time_s is not None:
+            mat = p.material
             lam = mat.lambda0 if self.lambda_rest is None else jnp.asarray(self.lambda_rest, dt)
-            mat = mat._replace(lambda0=structure_after_rest(lam, self.rest_time_s, mat.T))
-        return mat
+            p = p._replace(material=mat._replace(lambda0=structure_after_rest(lam, self.rest_time_s, mat.T)))
+        return p
 
     def run(self, values: dict, n_frames: int | None = None):
-        """(initial state, frames) of the run with the material ``values`` (up to the last
+        """(initial state, frames) of the run with the parameter ``values`` (up to the last
         frame the data need, or ``n_frames``)."""
         s = self.setup
-        p = s.params._replace(material=self.material(values))
+        p = self.params(values)
         st = restate(s.state, s.scene, p)
         _, fr = mpmjax.simulate(s.scene, st, p, self.n_frames_needed if n_frames is None else n_frames)
         return st, fr
@@ -649,13 +656,11 @@ def _runs(parts, values, n_frames):
     releases after different rests), as one ``vmap`` over their materials: one compiled
     simulation however many rests.  Returns {run_key: (initial state, frames)}."""
     s = parts[0].setup
-    mats = [p.material(values) for p in parts]
     if len(parts) == 1:
         return {parts[0].run_key: parts[0].run(values, n_frames)}
-    batch = jax.tree.map(lambda *a: jnp.stack(a), *mats)
+    batch = jax.tree.map(lambda *a: jnp.stack(a), *[p.params(values) for p in parts])
 
-    def one(mat):
-        p = s.params._replace(material=mat)
+    def one(p):
         st = restate(s.state, s.scene, p)
         return st, mpmjax.simulate(s.scene, st, p, n_frames)[1]
 

@@ -23,10 +23,12 @@ is not part of z.
 Parameter names are the fields of the scene's material NamedTuple (``mpmjax``'s
 ``CoussotParams``: mu0, alpha, T, n, lambda0, mu_max, rho, kappa; ``BinghamParams``: mu,
 tau_y, alpha_b, m; ``HerschelBulkleyParams``: tau_y, K, n_hb, m, mu_max;
-``NewtonianParams``: mu; or any registered law's).  :data:`DEFAULT_BOUNDS` gives bounds that
+``NewtonianParams``: mu; or any registered law's) and, for a depth-averaged scene on a
+``coulomb`` or ``voellmy`` terrain, its basal friction (``friction``, ``turbulence``:
+``mpmjax.basal_parameters()``).  :data:`DEFAULT_BOUNDS` gives bounds that
 contain every value in the thesis and the literature it cites, with margin; a value outside
-its bounds is an error, not a silent clip.  Bounds, units and scene keys are read from each
-law's parameter declarations (``mpmjax.material_parameters()``), not listed here.
+its bounds is an error, not a silent clip.  Bounds, units and scene keys are read from the
+parameters' declarations (``mpmjax.fit_parameters()``), not listed here.
 """
 
 from __future__ import annotations
@@ -40,21 +42,21 @@ import jax.numpy as jnp
 
 import mpmjax
 
-__all__ = ["DEFAULT_BOUNDS", "SCENE_KEYS", "UNITS", "ParamSpec", "ParameterSet"]
+__all__ = ["DEFAULT_BOUNDS", "SCENE_KEYS", "UNITS", "ParamSpec", "ParameterSet", "check_names"]
 
 TRANSFORMS = ("log", "softplus", "linear", "identity")
 
 class _Declared(Mapping):
-    """name -> one field of each material parameter's declaration (``mpmjax.material_parameters()``:
-    the law's ``Param``), read live, so a law registered later is included.  Parameters whose
-    field is None (no calibration bounds) are left out."""
+    """name -> one field of each parameter's declaration (``mpmjax.fit_parameters()``: the law's
+    ``Param``, or the basal friction's), read live, so a law registered later is included.
+    Parameters whose field is None (no calibration bounds) are left out."""
 
     def __init__(self, field: str):
         self._field = field
 
     def _table(self) -> dict:
         out = {}
-        for name, p in mpmjax.material_parameters().items():
+        for name, p in mpmjax.fit_parameters().items():
             v = getattr(p, self._field)
             if v is not None:
                 out[name] = v
@@ -184,24 +186,51 @@ class ParamSpec:
         return (self._raw_inv(theta) - u0) / k
 
 
-class ParameterSet:
-    """The fitted and fixed parameters of a calibration, mapped onto a material NamedTuple.
+def _names(base) -> tuple:
+    """The parameter names ``base`` carries: a ``mpmjax.Params`` (material and basal) or a material NamedTuple."""
+    return tuple(mpmjax.fit_parameters(base)) if isinstance(base, mpmjax.Params) else type(base)._fields
 
-    ``specs``: ParamSpecs (fixed ones included); ``material``: the scene's material
-    NamedTuple (``setup.params.material``), whose other fields stay as they are.
+
+def _value(base, name):
+    return mpmjax.parameter_value(base, name) if isinstance(base, mpmjax.Params) else getattr(base, name)
+
+
+def _not_carried(name, base) -> ValueError:
+    what = type(base.material if isinstance(base, mpmjax.Params) else base).__name__
+    if isinstance(base, mpmjax.Params) and base.basal is not None:
+        what += " or its basal friction"
+    hint = ""
+    if name in mpmjax.basal_parameters() and not (isinstance(base, mpmjax.Params) and base.basal is not None):
+        hint = " (friction and turbulence belong to a depth-averaged scene whose terrain.type is coulomb or voellmy)"
+    return ValueError(
+        f"parameter {name!r} is not a field of the scene's material {what}; allowed: {', '.join(_names(base))}{hint}"
+    )
+
+
+def check_names(names, params, option: str) -> None:
+    """ValueError naming ``option`` (e.g. ``--fit``) for the first of ``names`` that ``params`` (the
+    scene's ``mpmjax.Params``, e.g. ``mpmjax.make_params(cfg)``: no scene is built) does not carry."""
+    for n in names:
+        if n not in _names(params):
+            raise ValueError(f"{option} {n}: {_not_carried(n, params)}")
+
+
+class ParameterSet:
+    """The fitted and fixed parameters of a calibration, mapped onto the scene's parameters.
+
+    ``specs``: ParamSpecs (fixed ones included); ``material``: the scene's ``mpmjax.Params``
+    (``setup.params``: material and basal friction can be named) or its material NamedTuple
+    (``setup.params.material``), whose other fields stay as they are.
     ``free``: names of the fitted parameters, in order (the order of z and of the
     uncertainty outputs).
     """
 
     def __init__(self, specs, material):
         self.specs = {s.name: s for s in specs}
-        fields = type(material)._fields
+        fields = _names(material)
         for s in specs:
             if s.name not in fields:
-                raise ValueError(
-                    f"parameter {s.name!r} is not a field of the scene's material {type(material).__name__}; "
-                    f"allowed: {', '.join(f for f in fields)}"
-                )
+                raise _not_carried(s.name, material)
         if len(self.specs) != len(specs):
             raise ValueError(f"a parameter is named twice in {[s.name for s in specs]}")
         self.material = material
@@ -218,12 +247,9 @@ class ParameterSet:
         fixed = tuple(fixed) + tuple(k for k in init if k not in fit and k not in fixed)
         specs = []
         for name in list(fit) + [f for f in fixed if f not in fit]:
-            if name not in type(material)._fields:
-                raise ValueError(
-                    f"parameter {name!r} is not a field of the scene's material {type(material).__name__}; "
-                    f"allowed: {', '.join(type(material)._fields)}"
-                )
-            x0 = float(init.get(name, getattr(material, name)))
+            if name not in _names(material):
+                raise _not_carried(name, material)
+            x0 = float(init.get(name, _value(material, name)))
             tr = transforms.get(name, "log")
             lo, hi = bounds.get(
                 name, DEFAULT_BOUNDS.get(name, (None, None)) if tr in ("log", "linear") else (None, None)
@@ -250,9 +276,12 @@ class ParameterSet:
         return {**{k: s.init for k, s in self.specs.items() if s.fixed}, **theta}
 
     def material_of(self, theta: dict, base=None):
-        """``base`` (default: the scene's material) with the free parameters set to ``theta``
-        and the fixed ones to their ``init``."""
+        """``base`` (default: the set's ``material``, a material NamedTuple or a ``mpmjax.Params``)
+        with the free parameters set to ``theta`` and the fixed ones to their ``init``; the same kind
+        as ``base``."""
         base = self.material if base is None else base
+        if isinstance(base, mpmjax.Params):
+            return mpmjax.replace_parameters(base, self.values(theta), jnp.result_type(base.material[0]))
         dt = jnp.result_type(base[0])
         return base._replace(**{k: jnp.asarray(v, dt) for k, v in self.values(theta).items()})
 

@@ -36,7 +36,7 @@ from .experiments import (
 )
 from .fit import default_starts
 from .multilevel import MultilevelResult, check_levels, experiments_at_cell_size, fit_multilevel
-from .params import ParameterSet
+from .params import ParameterSet, check_names
 from .profile import check_profile_options, profile_likelihood
 from .sweep import FIELD_KEYS
 from .uncertainty import REL_STD_WARN
@@ -546,11 +546,13 @@ def calibrate(
         scene, overrides, data_times, init, levels, refine, profile,
         (profile_points, profile_width, profile_max_iter), refine_max_iter,
     )
+    check_names(names, mpmjax.make_params(cfg), "--fit")  # before the scene is built
+    check_names(init, mpmjax.make_params(cfg), "--init")
     setup = mpmjax.build(cfg)
     time_set = any(o.split("=", 1)[0].strip() in ("time.t_end_s", "time.n_frames") for o in overrides_given or [])
     _check_reach(setup, runout_m, latest, time_set)
     pset = ParameterSet.from_names(
-        names, setup.params.material, init=init, bounds=dict(bounds or {}), transforms=dict(transforms or {})
+        names, setup.params, init=init, bounds=dict(bounds or {}), transforms=dict(transforms or {})
     )
     starts = default_starts(len(pset.free)) if starts is None else starts
     # the observable is the same at every level: bandwidth and runout sigma fixed in metres

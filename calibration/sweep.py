@@ -20,8 +20,9 @@ hosts; ``shard=(I, N)`` runs one share of the cases for a job array (``write_par
   (``mpmjax.time_to_rest``; NaN if the material has not come to rest);
 * ``n_lost`` particles and the final height profile on ``profile_x_m``.
 
-Only material parameters can vary inside a batch (the scene's grid, time step and
-shape are static).  Every case is validated as a scene (the usual key, value and range
+Material parameters, and the basal friction of a depth-averaged scene on a ``coulomb`` or
+``voellmy`` terrain (``friction``, ``turbulence``: ``mpmjax.fit_parameters``), can vary inside
+a batch (the scene's grid, time step and shape are static).  Every case is validated as a scene (the usual key, value and range
 errors), and the batch uses one time step: the smallest stable step over the cases
 (reported as ``dt_s``), so a stiffer case does not break the batch.
 """
@@ -125,24 +126,29 @@ def _on_profile(sc, axis) -> bool:
     return sc.dim == 2 and axis == 0
 
 
+def _lane(params, m):
+    """The scene's ``params`` with one lane's varied part ``m`` = (material, basal friction)."""
+    return params._replace(material=m[0], basal=m[1])
+
+
 @partial(jax.jit, static_argnames=("sc",))
 def _batch_start(mats, params, state0, *, sc):
     """The lanes' initial states: the scene's, with each lane's material (``mpmjax.restate``)."""
-    return jax.vmap(lambda m: mpmjax.restate(state0, sc, params._replace(material=m)))(mats)
+    return jax.vmap(lambda m: mpmjax.restate(state0, sc, _lane(params, m)))(mats)
 
 
 @partial(jax.jit, static_argnames=("sc",))
 def _batch_steps(states, mats, params, n, *, sc):
     """``n`` steps of every lane (``mpmjax.make_steps``: one program for any ``n``)."""
     steps = mpmjax.make_steps(sc)
-    return jax.vmap(lambda s, m: steps(s, params._replace(material=m), n))(states, mats)
+    return jax.vmap(lambda s, m: steps(s, _lane(params, m), n))(states, mats)
 
 
 @partial(jax.jit, static_argnames=("sc",))
 def _batch_frame(states, mats, params, *, sc):
     """One whole frame of every lane (slab decomposition, which is not chunked: ``mpmjax.chunkable``)."""
     chunk = mpmjax.make_chunk(sc)
-    return jax.vmap(lambda s, m: chunk(s, params._replace(material=m)))(states, mats)
+    return jax.vmap(lambda s, m: chunk(s, _lane(params, m)))(states, mats)
 
 
 @partial(jax.jit, static_argnames=("sc", "axis", "origin", "spacing"))
@@ -158,7 +164,7 @@ def _batch_observe(states, mats, vol0, *, sc, axis, origin, spacing):
             front = jnp.where(some, front - origin, 0.0)
         else:
             front = far
-        return front, far, mpmjax.kinetic_energy(st.v, vol0, st.active, mat.rho)
+        return front, far, mpmjax.kinetic_energy(st.v, vol0, st.active, mat[0].rho)
 
     return jax.vmap(one)(states, mats)
 
@@ -178,7 +184,7 @@ def _batch_final(states, vol0, x_prof, *, sc):
 
 
 def _run_batch(mats, shared, how, layout, pacer):
-    """Every case of one batch (``mats`` holds the lanes), frame by frame and each frame in chunks
+    """Every case of one batch (``mats`` holds the lanes' (material, basal friction)), frame by frame and each frame in chunks
     of steps (``mpmjax.run_chunked``), so that Ctrl-C / SIGTERM is acted on within about a second
     (``mpmjax.Pacer``) however long a batch or a frame is, not only when the batch ends (issue 35).
     Returns (front per frame, farthest particle per frame, kinetic energy per frame, lost
@@ -243,20 +249,29 @@ def sweep(
     identity = _identity(cfg, vary, shard, profile_x_m)
     kept = None if keep is None else _read_kept(Path(keep), identity, resume)
     mpmjax.check_memory(cfg)  # before anything is built: a case that cannot fit is refused (MemoryRefused, exit 2)
-    setup = mpmjax.build(cfg)
-    fields = type(setup.params.material)._fields
+    p_cfg = mpmjax.make_params(cfg)  # the names it carries, before the scene is built
+    fields = mpmjax.fit_parameters(p_cfg)
     for k in vary:
         if k not in fields:
             raise ValueError(
-                f"--vary {k}: not a material parameter of scene {cfg['name']!r} ({cfg['material.model']}); "
-                f"allowed: {', '.join(fields)} (only material parameters can vary inside a batch)"
+                f"--vary {k}: not a parameter of scene {cfg['name']!r} ({cfg['material.model']}"
+                + (f", terrain {cfg['terrain.type']}" if p_cfg.basal is not None else "")
+                + f"); allowed: {', '.join(fields)} (only material parameters, and the basal friction of a "
+                "depth-averaged scene on a coulomb or voellmy terrain, can vary inside a batch)"
             )
+    setup = mpmjax.build(cfg)
     cases = _cases(vary)
-    # validate each case as a scene, and find the stable step of each
-    limits = []
+    # validate each case as a scene, and find the stable step of each.  The depth-averaged step's limit
+    # (``_shallow.time_step_limits``: gravity-wave and flow speeds of the geometry; its friction is implicit)
+    # depends on no parameter a sweep can vary, so the scene's step holds for every case there; the full
+    # model's (sound speed, Maxwell modulus, viscous limit) is taken per case
+    shallow = cfg["model.formulation"] == "depth-averaged"
+    limits = [setup.scene.dt]
     for c in cases:
         ov = overrides + [f"{FIELD_KEYS[k]}={v!r}" for k, v in c.items()]
         ci = mpmjax.load_scene(scene, ov)
+        if shallow:
+            continue
         pi = mpmjax.make_params(ci, setup.scene.dim, setup.scene.dtype)
         x0, v0 = np.asarray(setup.state.x), np.asarray(setup.state.v)
         lim = mpmjax.time_step_limits(ci, pi, x0, v0, setup.scene.rheology)
@@ -289,9 +304,8 @@ def sweep(
     # compilation serves every sweep of the same scene and batch size in the process
     npdt = np.dtype(sc.dtype)
     shared = layout.replicate((params, state0, np.asarray(x_prof, npdt)))
-    mat0 = params.material
     cols = {k: np.asarray([c[k] for c in cases_run], npdt) for k in vary}
-    base = {f: np.asarray(getattr(mat0, f)) for f in mat0._fields}
+    varied0 = (params.material, params.basal)
     say = progress and is_writer()
     if say and done:
         sys.stderr.write(f"sweep: {len(done)} of {n} cases already finished (kept in {keep}); running the others\n")
@@ -301,10 +315,10 @@ def sweep(
     for b in range(n_chunks):
         sel = todo[b * ch : (b + 1) * ch]
         idx = np.asarray(sel + [sel[-1]] * (ch - len(sel)))  # pad with the last case
-        lanes = {f: np.broadcast_to(a, (ch,) + a.shape).copy() for f, a in base.items()}
-        lanes.update({k: cols[k][idx] for k in vary})
+        m, b = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (ch,) + np.shape(a)).copy(), varied0)
+        lanes = mpmjax.replace_parameters(params._replace(material=m, basal=b), {k: cols[k][idx] for k in vary})
         try:
-            out = _run_batch(layout.put(mat0._replace(**lanes)), shared, how, layout, pacer)
+            out = _run_batch(layout.put((lanes.material, lanes.basal)), shared, how, layout, pacer)
         except KeyboardInterrupt as e:
             note = _interrupted_note(len(done), n, keep)
             raise mpmjax.Interrupted(getattr(e, "signum", signal.SIGINT), note) from None

@@ -12,7 +12,9 @@ Public API (modules are private; names are re-exported here):
 * rheology: ``Newtonian``, ``Bingham``, ``HerschelBulkley``, ``Coussot`` and their
   parameter NamedTuples; adding a law: ``Law``, ``Param``, ``Option``, ``Internal``,
   ``register_law``, ``unregister_law``; ``material_parameters()`` (name -> ``Param``: scene
-  key, unit, default, range, calibration bounds), ``law_of(params)``
+  key, unit, default, range, calibration bounds), ``law_of(params)``; what a fit or a sweep can
+  vary by name, material and basal friction alike: ``fit_parameters``, ``basal_parameters``,
+  ``replace_parameters``, ``parameter_value``
 * time step: ``time_step_limits``; cost before a run is built: ``check_memory`` (refuses with
   ``MemoryRefused``, a ``SceneError``), ``STEPS_WARN`` and ``estimate_run_time_s``
 * observables: ``runout``; differentiable ``height_profile``, ``smooth_front``,
@@ -67,6 +69,7 @@ from ._rheology import (
     law_of,
 )
 from ._rheology import parameters as material_parameters
+from ._varied import basal_parameters, fit_parameters, parameter_value, replace_parameters
 from ._scene import Basal, Gate, Params, Scene, State, Wall, init_state, restate
 from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
 from ._simulate import Frame, Pacer, chunkable, make_advance, make_chunk, make_steps, run, run_chunked, simulate
@@ -96,6 +99,10 @@ __all__ = [
     "Internal",
     "law_of",
     "material_parameters",
+    "fit_parameters",
+    "basal_parameters",
+    "replace_parameters",
+    "parameter_value",
     "runout",
     "free_surface_front",
     "FRONT_FRACTION",

@@ -47,15 +47,23 @@ def plug_excess(tau_y, tau_v):
     """s = tau_b - tau_y >= 0 of the Bingham plug-flow cubic (module docstring) for tau_y >= 0 and
     tau_v > 0: the positive root of s^3 + (3/2 tau_y - tau_v) s^2 - 2 tau_v tau_y s - tau_v tau_y^2 = 0
     (the cubic in tau_b shifted by tau_y), by Newton from s0 = tau_v + sqrt(tau_v tau_y), an upper
-    bound of the root on the convex branch, so the iterates decrease monotonically to it."""
-    b = 1.5 * tau_y - tau_v
-    s = tau_v + jnp.sqrt(jnp.maximum(tau_v * tau_y, 1e-30))
+    bound of the root on the convex branch, so the iterates decrease monotonically to it.
+
+    Solved scaled by S = tau_v + tau_y (a = tau_v / S, y = tau_y / S, sigma = s / S: every term of
+    order 1), which leaves Newton's iterates unchanged but keeps their forward-mode tangents finite in
+    float32: unscaled, a thin front column (tau_v ~ 1e7 Pa) made the quotient rule's g' gp ~ 1e35 and
+    the Jacobian of a friction fit NaN (2026-12-06)."""
+    scale = tau_v + tau_y
+    a = tau_v / scale
+    y = tau_y / scale
+    b = 1.5 * y - a
+    s = a + jnp.sqrt(jnp.maximum(a * y, 1e-30))
     for _ in range(NEWTON_ITERATIONS):
-        g = ((s + b) * s - 2.0 * tau_v * tau_y) * s - tau_v * tau_y * tau_y
-        gp = (3.0 * s + 2.0 * b) * s - 2.0 * tau_v * tau_y
+        g = ((s + b) * s - 2.0 * a * y) * s - a * y * y
+        gp = (3.0 * s + 2.0 * b) * s - 2.0 * a * y
         ok = gp > 0
         s = s - jnp.where(ok, g / jnp.where(ok, gp, 1.0), 0.0)
-    return jnp.maximum(s, 0.0)
+    return jnp.maximum(s, 0.0) * scale
 
 
 def shear_rate(speed, depth_n):

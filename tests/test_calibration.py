@@ -306,6 +306,45 @@ def test_sweep_batched_equals_one_by_one():
     assert r[(6.0, 2.0)] < r[(2.0, 2.0)] and r[(6.0, 3.0)] < r[(2.0, 3.0)]
 
 
+def _voellmy_slide(tmp_path) -> str:
+    """A depth-averaged scene file: a 0.3 m x 0.15 m Bingham block (tau_y = 1 Pa) on a 30 degree DEM plane
+    with Voellmy friction, 0.6 s at h = 2 cm (30 columns)."""
+    xs = np.arange(0.0, 3.0 + 1e-9, 0.02)
+    heights = ", ".join(f"{(3.0 - x) * math.tan(math.radians(30.0)):.6f}" for x in xs)
+    path = tmp_path / "slide.toml"
+    path.write_text(
+        'name = "voellmy-slide"\n[model]\nformulation = "depth-averaged"\n'
+        "[domain]\ndim = 2\nlo_m = [0.0, 0.0]\nhi_m = [3.0, 2.0]\ncell_size_m = 0.02\n"
+        '[boundary]\nx_lo = "slip"\nx_hi = "open"\n[numerics]\nshape = "quadratic"\nppc = 2\ndtype = "float64"\n'
+        '[material]\nmodel = "bingham"\nviscosity_pa_s = 0.01\nyield_stress_pa = 1.0\ndensity_kg_m3 = 1000.0\n'
+        "bulk_modulus_pa = 1e5\n"
+        f'[terrain]\ntype = "voellmy"\nheights_m = [{heights}]\norigin_m = [0.0]\nspacing_m = 0.02\nfriction = 0.2\n'
+        "turbulence_m_s2 = 200.0\n[time]\nt_end_s = 0.6\nn_frames = 3\n"
+        '[[bodies]]\ntype = "box"\nlo_m = [0.0, 1.6]\nhi_m = [0.3, 1.75]\n'
+    )
+    return str(path)
+
+
+def test_a_sweep_of_the_basal_friction_equals_one_by_one(tmp_path):
+    """``friction`` and ``turbulence`` (``Params.basal``, issue 33) vary inside a sweep's batch as the
+    material parameters do: each lane equals its own run (``mpmjax.replace_parameters``, float64, to
+    1e-12), and the physics orders them: more Coulomb friction runs out less far, a larger xi (less
+    turbulent drag) further."""
+    scene = _voellmy_slide(tmp_path)
+    res = sweep(scene, {"friction": [0.1, 0.3], "turbulence": [100.0, 400.0]}, chunk=3, progress=False)
+    setup = m.build(m.load_scene(scene))
+    assert res["dt_s"] == setup.scene.dt  # the depth-averaged step's limit depends on no parameter varied
+    info = setup.info
+    for i, c in enumerate(res["cases"]):
+        p = m.replace_parameters(setup.params, c, jnp.float64)
+        final, _ = m.simulate(setup.scene, restate(setup.state, setup.scene, p), p)
+        far = m.runout(final.x, final.active, info["runout_axis"], info["runout_origin_m"], info["particle_spacing_m"])
+        assert res["final_runout_farthest_particle_m"][i] == pytest.approx(float(far), rel=1e-12, abs=1e-12)
+    r = {(c["friction"], c["turbulence"]): res["final_runout_m"][i] for i, c in enumerate(res["cases"])}
+    assert r[(0.3, 100.0)] < r[(0.1, 100.0)] and r[(0.3, 400.0)] < r[(0.1, 400.0)]
+    assert r[(0.1, 100.0)] < r[(0.1, 400.0)] and r[(0.3, 100.0)] < r[(0.3, 400.0)]
+
+
 def test_sweep_sharded_over_two_host_devices_equals_one_device(tmp_path):
     code = (
         "import json, sys; from calibration.sweep import sweep; import jax; "
@@ -324,7 +363,7 @@ def test_sweep_sharded_over_two_host_devices_equals_one_device(tmp_path):
 
 
 def test_sweep_errors():
-    with pytest.raises(ValueError, match="--vary tau_y: not a material parameter of scene"):
+    with pytest.raises(ValueError, match="--vary tau_y: not a parameter of scene"):
         sweep(TWIN, {"tau_y": [1.0]}, overrides=SMALL, progress=False)
     with pytest.raises(m.SceneError, match="material.n"):
         sweep(TWIN, {"n": [2.0, -1.0]}, overrides=SMALL, progress=False)

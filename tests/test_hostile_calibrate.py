@@ -140,6 +140,8 @@ def test_a_hostile_second_data_file_is_named(capsys, tmp_path, data, monkeypatch
         (["--bounds", "mu0=5:1"], ("--bounds 'mu0=5:1'", "finite LO < HI")),
         (["--bounds", "mu0=nan:1"], ("--bounds 'mu0=nan:1'", "finite LO < HI")),
         (["--profile-points", "4"], ("--profile-points = 4", "odd integer >= 3")),  # without --profile too
+        # a basal coefficient on a scene without a frictional depth-averaged bed, named with what it needs
+        (["--init", "friction=0.2"], ("--init friction", "allowed: rho, kappa, mu0", "depth-averaged scene")),
     ],
 )
 def test_an_option_is_blamed_on_itself(capsys, tmp_path, data, nothing_built, extra, words):

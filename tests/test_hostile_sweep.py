@@ -93,3 +93,11 @@ def test_a_damaged_part_names_its_file(capsys, tmp_path, content):
 def test_parts_that_are_a_file_are_refused(capsys, tmp_path):
     (tmp_path / "afile").write_text("x")
     _refused(capsys, ["sweep-merge", str(tmp_path / "afile"), "--quiet"], "afile: not a folder")
+
+
+def test_a_basal_coefficient_on_a_scene_without_one_is_refused_before_it_is_built(capsys, tmp_path, monkeypatch):
+    """``friction`` / ``turbulence`` vary only on a depth-averaged scene with a coulomb or voellmy terrain
+    (``mpmjax.fit_parameters``); elsewhere the refusal lists what can vary, before any scene is built."""
+    monkeypatch.setattr(mpmjax, "build", lambda *a, **k: pytest.fail("a scene was built"))
+    argv = ["sweep", TWIN, "--vary", "friction=0.1,0.2", "--quiet", "--out", str(tmp_path / "o")]
+    _refused(capsys, argv, "--vary friction", "allowed: rho, kappa, mu0", "depth-averaged scene")

@@ -78,7 +78,12 @@ def add_distributed_arguments(p) -> None:
 def add_calibrate_arguments(p) -> None:
     p.add_argument("data", help="measured profiles: CSV (x_m, h_m [, t_s, sigma_m]) or HDF5; see docs/calibration.md")
     p.add_argument("--scene", default="dambreak-lab", help="built-in scene name or TOML path (default dambreak-lab)")
-    p.add_argument("--fit", required=True, help="comma-separated parameters to fit, e.g. mu0,alpha,T,n,lambda0")
+    p.add_argument(
+        "--fit",
+        required=True,
+        help="comma-separated parameters to fit, e.g. mu0,alpha,T,n,lambda0; on a depth-averaged scene with a "
+        "coulomb or voellmy terrain also friction, turbulence (its basal friction)",
+    )
     p.add_argument(
         "--init",
         action="append",

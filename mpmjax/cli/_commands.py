@@ -144,7 +144,7 @@ COMMANDS = (
     ),
     Command(
         "sweep",
-        "run a grid of material parameters as one vmap batch (runout, time to rest)",
+        "run a grid of material (or basal friction) parameters as one vmap batch (runout, time to rest)",
         _sweep.add_sweep_arguments,
         _sweep.cmd_sweep,
         invalid=(ValueError,),

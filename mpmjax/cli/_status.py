@@ -28,7 +28,8 @@ from . import _guard
 from ._guard import UsageError
 
 USAGE_ERROR = 2  # invalid input: the message names the key or option, the value and the allowed range
-FAILED = 3  # a run stopped by a failed health check; a stress or validate case missed its criteria
+FAILED = 3  # a run stopped by a failed health check; a stress or validate case missed its criteria; a fit's
+# model or its derivatives turned non-finite (FloatingPointError)
 OUTPUT_FAILED = 4  # a run stopped because its output could not be written (OutputFailure)
 SIGINT_STATUS = 130  # 128 + SIGINT: Ctrl-C outside a run's own handler (KeyboardInterrupt)
 
@@ -50,7 +51,7 @@ def _usage(e, notes):
 STATUSES = (
     ((Interrupted,), lambda e: 128 + e.signum, _interrupted),  # SIGINT 130, SIGTERM 143
     ((KeyboardInterrupt,), SIGINT_STATUS, _interrupted),
-    ((RunFailure,), FAILED, _failed),
+    ((RunFailure, FloatingPointError), FAILED, _failed),
     ((OutputFailure,), OUTPUT_FAILED, lambda e, notes: f"\nmpmjax: {e}"),
     ((UsageError, SceneError, DataError, DistributedError), USAGE_ERROR, _usage),
 )

@@ -17,7 +17,8 @@ def add_sweep_arguments(p) -> None:
         action="append",
         required=True,
         metavar="NAME=V1,V2,...",
-        help="material parameter and its values [SI], e.g. n=1.5,2,2.5,3; repeat for a grid",
+        help="material parameter (or friction / turbulence: the basal friction of a depth-averaged scene on a "
+        "coulomb or voellmy terrain) and its values [SI], e.g. n=1.5,2,2.5,3; repeat for a grid",
     )
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="scene override, e.g. time.t_end_s=5")
     number(p, "--chunk", type=int, lo=1, help="cases per vmap batch (default: as many as fit in a quarter of memory)")
