@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _shallow
 from ._dem import NODATA, write_raster
 from ._received import check
 from ._scene import Params, Scene, State
@@ -58,13 +59,16 @@ MAPS = {  # file stem: (unit, meaning)
 
 class HazardGrid(NamedTuple):
     """Static plan-view grid: ``lo`` (dim-1,) [m] of the first bin's lower edge, ``cell`` [m],
-    ``shape`` bins per horizontal axis, ``threshold`` wet depth [m], ``every`` steps between samples."""
+    ``shape`` bins per horizontal axis, ``threshold`` wet depth [m], ``every`` steps between samples;
+    ``plan``: the scene of a depth-averaged run, whose bins take the step's own nodal depth and
+    momentum (``_shallow.cell_depth_speed``), or None (bins of particle positions)."""
 
     lo: tuple
     cell: float
     shape: tuple
     threshold: float
     every: int
+    plan: Scene | None = None
 
     @classmethod
     def of(cls, scene: Scene, cfg: dict) -> HazardGrid:
@@ -76,6 +80,7 @@ class HazardGrid(NamedTuple):
             shape,
             float(cfg["output.hazard_depth_m"]),
             int(cfg["output.hazard_every_steps"]),
+            scene if scene.formulation == "depth-averaged" else None,
         )
 
     @property
@@ -102,7 +107,11 @@ def bins(state: State, grid: HazardGrid, total=None):
     """Flow depth [m] and depth-averaged speed [m/s] per bin (flat) of a state (module docstring).
 
     ``total``: sums the per-bin volume and momentum over the devices that hold the particles
-    (``psum`` on slabs, ``make_hazard_advance``); default: the state holds them all."""
+    (``psum`` on slabs, ``make_hazard_advance``); default: the state holds them all.  A depth-averaged
+    run (``grid.plan``) takes the step's nodal depth and momentum instead (``_shallow.cell_depth_speed``;
+    it runs on one device)."""
+    if grid.plan is not None:
+        return _shallow.cell_depth_speed(grid.plan, state, grid.lo, grid.shape)
     k = len(grid.shape)
     x, dt = state.x, state.x.dtype
     idx = jnp.floor((x[:, :k] - jnp.asarray(grid.lo, dt)[None, :]) / grid.cell).astype(jnp.int32)

@@ -55,8 +55,11 @@ extra planes, periodic faces, pipe inflow, the aging gate and device sharding.
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -420,6 +423,68 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, vol0: np.ndarray,
         "mu_max_pa_s": float(rheology.max_viscosity(params.material)),
         "max_depth_m": H,
     }
+
+
+def cell_depth_speed(scene: Scene, state: State, lo, shape, speed: bool = True):
+    """Flow depth [m] and depth-averaged speed [m/s] on the cells [lo + i h, lo + (i + 1) h) of the
+    plan (``shape`` cells per axis; flat, C order), from the step's own nodal fields: the depth H of
+    ``plan_depth`` and the momentum sum_p w_ip V_p v_p on the plan nodes, each cell taking the mean of
+    its 2^k corner nodes (speed: |mean momentum| / mean volume, all components of v; None without
+    ``speed``).  The depth-averaged run's hazard maps and deposit thickness (``_hazard``,
+    ``_metrics.RunoutGauge``): binned by particle position instead, the cells of field-breach-da's
+    deposit scatter by 37-39 % (rms) about this depth, and its thickest cell read 12.5 or 15.5 m by
+    float32 rounding alone where this reads 7.66 m both times (docs/depth-averaged.md)."""
+    origin, gshape = _plan_grid(scene)
+    k = len(gshape)
+    st = _Stencil(scene, state.x[:, :k])
+    V = state.vol0 * state.active.astype(state.x.dtype)
+    n_nodes = int(np.prod(gshape))
+    Vn = st.scatter(V[:, None], n_nodes)[:, 0]
+    H = (_fold(Vn, gshape, _mirror(scene)) / scene.h**k).reshape(gshape)
+    g = [int(round((lo[a] - origin[a]) / scene.h)) for a in range(k)]
+
+    def corners(a):
+        """Mean over each cell's 2^k corner nodes of the nodal field ``a``."""
+        out = 0.0
+        for c in np.ndindex(*(2,) * k):
+            out = out + a[tuple(slice(g[i] + c[i], g[i] + c[i] + shape[i]) for i in range(k))]
+        return out / 2**k
+
+    depth = corners(H).reshape(-1)
+    if not speed:
+        return depth, None
+    mom = corners(st.scatter(V[:, None] * state.v, n_nodes).reshape(gshape + (state.v.shape[1],)))
+    vol = corners(Vn.reshape(gshape)).reshape(-1)
+    m = mom.reshape(-1, state.v.shape[1])
+    return depth, jnp.sqrt(jnp.sum(m * m, axis=1)) / jnp.where(vol > 0, vol, 1.0)
+
+
+class _Fields(NamedTuple):
+    """The particle fields ``cell_depth_speed`` reads."""
+
+    x: jnp.ndarray
+    vol0: jnp.ndarray
+    active: jnp.ndarray
+    v: jnp.ndarray | None
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _cell_depth(scene: Scene, x, vol0, active):
+    k = plan_dims(scene)
+    shape = tuple(int(round((scene.hi[a] - scene.lo[a]) / scene.h)) for a in range(k))
+    st = _Fields(x=x, vol0=vol0, active=active, v=None)  # only the fields cell_depth_speed reads
+    return cell_depth_speed(scene, st, tuple(scene.lo[:k]), shape, speed=False)[0].reshape(shape)
+
+
+def cell_depth_map(scene: Scene, x, vol0, active) -> np.ndarray:
+    """The depth [m] on every cell of the domain's plan, (n_x[, n_y]) (``cell_depth_speed``), from
+    plan positions ``x`` (n, >= k), rest volumes and the active mask (numpy or jax)."""
+    dt = np.dtype(scene.dtype)
+    n = np.shape(active)[0]
+    return np.asarray(
+        _cell_depth(scene, jnp.asarray(x, dt), jnp.broadcast_to(jnp.asarray(vol0, dt), (n,)), jnp.asarray(active, bool)),
+        float,
+    )
 
 
 def plan_depth(scene: Scene, state: State):
