@@ -439,7 +439,9 @@ def cell_depth_speed(scene: Scene, state: State, lo, shape, speed: bool = True):
     st = _Stencil(scene, state.x[:, :k])
     V = state.vol0 * state.active.astype(state.x.dtype)
     n_nodes = int(np.prod(gshape))
-    Vn = st.scatter(V[:, None], n_nodes)[:, 0]
+    # one scatter for the volume and, with ``speed``, the momentum (XLA:CPU runs each scatter serially)
+    sums = st.scatter(V[:, None] if not speed else jnp.concatenate([V[:, None], V[:, None] * state.v], axis=1), n_nodes)
+    Vn = sums[:, 0]
     H = (_fold(Vn, gshape, _mirror(scene)) / scene.h**k).reshape(gshape)
     g = [int(round((lo[a] - origin[a]) / scene.h)) for a in range(k)]
 
@@ -453,7 +455,7 @@ def cell_depth_speed(scene: Scene, state: State, lo, shape, speed: bool = True):
     depth = corners(H).reshape(-1)
     if not speed:
         return depth, None
-    mom = corners(st.scatter(V[:, None] * state.v, n_nodes).reshape(gshape + (state.v.shape[1],)))
+    mom = corners(sums[:, 1:].reshape(gshape + (state.v.shape[1],)))
     vol = corners(Vn.reshape(gshape)).reshape(-1)
     m = mom.reshape(-1, state.v.shape[1])
     return depth, jnp.sqrt(jnp.sum(m * m, axis=1)) / jnp.where(vol > 0, vol, 1.0)

@@ -17,11 +17,12 @@ import json
 import time
 
 import jax
+import numpy as np
 
 from .._build import build
 from .._hazard import HazardGrid, init_maps, make_hazard_advance, update
 from .._schema import load_scene
-from .._simulate import make_chunk
+from .._simulate import chunkable, make_chunk
 
 
 def measure(scene: str, overrides: list[str], steps: int, reps: int, every: list[int]) -> dict:
@@ -33,8 +34,13 @@ def measure(scene: str, overrides: list[str], steps: int, reps: int, every: list
     for k in every:
         grid = HazardGrid.of(sc, dict(cfg, **{"output.hazard_every_steps": k}))
         maps = init_maps(grid, st.x.dtype)
-        compiled = make_hazard_advance(sc, grid).lower(st, maps, pr).compile()
-        progs[f"hazard_every_{k}"] = (lambda c, m: (lambda s, p: c(s, m, p)))(compiled, maps)
+        if chunkable(sc):  # the driver's advance takes the number of steps (one program for any count)
+            n = np.int32(steps)
+            compiled = make_hazard_advance(sc, grid).lower(st, maps, pr, n).compile()
+            progs[f"hazard_every_{k}"] = (lambda c, m, n: (lambda s, p: c(s, m, p, n)))(compiled, maps, n)
+        else:
+            compiled = make_hazard_advance(sc, grid).lower(st, maps, pr).compile()
+            progs[f"hazard_every_{k}"] = (lambda c, m: (lambda s, p: c(s, m, p)))(compiled, maps)
     cpu = {k: [] for k in progs}
     wall = {k: [] for k in progs}
     for _ in range(reps):
