@@ -315,8 +315,8 @@ def sweep(
     for b in range(n_chunks):
         sel = todo[b * ch : (b + 1) * ch]
         idx = np.asarray(sel + [sel[-1]] * (ch - len(sel)))  # pad with the last case
-        m, b = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (ch,) + np.shape(a)).copy(), varied0)
-        lanes = mpmjax.replace_parameters(params._replace(material=m, basal=b), {k: cols[k][idx] for k in vary})
+        mat_l, bas_l = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (ch,) + np.shape(a)).copy(), varied0)
+        lanes = mpmjax.replace_parameters(params._replace(material=mat_l, basal=bas_l), {k: cols[k][idx] for k in vary})
         try:
             out = _run_batch(layout.put((lanes.material, lanes.basal)), shared, how, layout, pacer)
         except KeyboardInterrupt as e:

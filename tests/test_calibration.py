@@ -325,13 +325,14 @@ def _voellmy_slide(tmp_path) -> str:
     return str(path)
 
 
-def test_a_sweep_of_the_basal_friction_equals_one_by_one(tmp_path):
+def test_a_sweep_of_the_basal_friction_equals_one_by_one(tmp_path, capsys):
     """``friction`` and ``turbulence`` (``Params.basal``, issue 33) vary inside a sweep's batch as the
     material parameters do: each lane equals its own run (``mpmjax.replace_parameters``, float64, to
     1e-12), and the physics orders them: more Coulomb friction runs out less far, a larger xi (less
     turbulent drag) further."""
     scene = _voellmy_slide(tmp_path)
-    res = sweep(scene, {"friction": [0.1, 0.3], "turbulence": [100.0, 400.0]}, chunk=3, progress=False)
+    res = sweep(scene, {"friction": [0.1, 0.3], "turbulence": [100.0, 400.0]}, chunk=3, progress=True)
+    assert "sweep: batch 2/2 (4/4 cases)" in capsys.readouterr().err  # the progress line of each batch
     setup = m.build(m.load_scene(scene))
     assert res["dt_s"] == setup.scene.dt  # the depth-averaged step's limit depends on no parameter varied
     info = setup.info
