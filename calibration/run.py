@@ -546,8 +546,9 @@ def calibrate(
         scene, overrides, data_times, init, levels, refine, profile,
         (profile_points, profile_width, profile_max_iter), refine_max_iter,
     )
-    check_names(names, mpmjax.make_params(cfg), "--fit")  # before the scene is built
-    check_names(init, mpmjax.make_params(cfg), "--init")
+    named = mpmjax.make_params(cfg)  # the names the scene carries, before it is built
+    check_names(names, named, "--fit")
+    check_names(init, named, "--init")
     setup = mpmjax.build(cfg)
     time_set = any(o.split("=", 1)[0].strip() in ("time.t_end_s", "time.n_frames") for o in overrides_given or [])
     _check_reach(setup, runout_m, latest, time_set)

@@ -22,8 +22,8 @@ hosts; ``shard=(I, N)`` runs one share of the cases for a job array (``write_par
 
 Material parameters, and the basal friction of a depth-averaged scene on a ``coulomb`` or
 ``voellmy`` terrain (``friction``, ``turbulence``: ``mpmjax.fit_parameters``), can vary inside
-a batch (the scene's grid, time step and shape are static).  Every case is validated as a scene (the usual key, value and range
-errors), and the batch uses one time step: the smallest stable step over the cases
+a batch (the scene's grid, time step and shape are static).  Every case is validated as a
+scene (the usual key, value and range errors), and the batch uses one time step: the smallest stable step over the cases
 (reported as ``dt_s``), so a stiffer case does not break the batch.
 """
 
@@ -184,9 +184,10 @@ def _batch_final(states, vol0, x_prof, *, sc):
 
 
 def _run_batch(mats, shared, how, layout, pacer):
-    """Every case of one batch (``mats`` holds the lanes' (material, basal friction)), frame by frame and each frame in chunks
-    of steps (``mpmjax.run_chunked``), so that Ctrl-C / SIGTERM is acted on within about a second
-    (``mpmjax.Pacer``) however long a batch or a frame is, not only when the batch ends (issue 35).
+    """Every case of one batch (``mats`` holds the lanes' (material, basal friction)), frame by
+    frame and each frame in chunks of steps (``mpmjax.run_chunked``), so that Ctrl-C / SIGTERM is
+    acted on within about a second (``mpmjax.Pacer``) however long a batch or a frame is, not only
+    when the batch ends (issue 35).
     Returns (front per frame, farthest particle per frame, kinetic energy per frame, lost
     particles, final height profile) per lane as numpy arrays."""
     params, state0, x_prof = shared
@@ -305,7 +306,11 @@ def sweep(
     npdt = np.dtype(sc.dtype)
     shared = layout.replicate((params, state0, np.asarray(x_prof, npdt)))
     cols = {k: np.asarray([c[k] for c in cases_run], npdt) for k in vary}
-    varied0 = (params.material, params.basal)
+    # every lane starts as the scene's material and basal friction; each batch sets the varied names
+    mat_l, bas_l = jax.tree.map(
+        lambda a: np.broadcast_to(np.asarray(a), (ch,) + np.shape(a)).copy(), (params.material, params.basal)
+    )
+    lane_base = params._replace(material=mat_l, basal=bas_l)
     say = progress and is_writer()
     if say and done:
         sys.stderr.write(f"sweep: {len(done)} of {n} cases already finished (kept in {keep}); running the others\n")
@@ -315,8 +320,7 @@ def sweep(
     for b in range(n_chunks):
         sel = todo[b * ch : (b + 1) * ch]
         idx = np.asarray(sel + [sel[-1]] * (ch - len(sel)))  # pad with the last case
-        mat_l, bas_l = jax.tree.map(lambda a: np.broadcast_to(np.asarray(a), (ch,) + np.shape(a)).copy(), varied0)
-        lanes = mpmjax.replace_parameters(params._replace(material=mat_l, basal=bas_l), {k: cols[k][idx] for k in vary})
+        lanes = mpmjax.replace_parameters(lane_base, {k: cols[k][idx] for k in vary})
         try:
             out = _run_batch(layout.put((lanes.material, lanes.basal)), shared, how, layout, pacer)
         except KeyboardInterrupt as e:

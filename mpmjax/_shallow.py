@@ -483,10 +483,8 @@ def cell_depth_map(scene: Scene, x, vol0, active) -> np.ndarray:
     plan positions ``x`` (n, >= k), rest volumes and the active mask (numpy or jax)."""
     dt = np.dtype(scene.dtype)
     n = np.shape(active)[0]
-    return np.asarray(
-        _cell_depth(scene, jnp.asarray(x, dt), jnp.broadcast_to(jnp.asarray(vol0, dt), (n,)), jnp.asarray(active, bool)),
-        float,
-    )
+    vol = jnp.broadcast_to(jnp.asarray(vol0, dt), (n,))
+    return np.asarray(_cell_depth(scene, jnp.asarray(x, dt), vol, jnp.asarray(active, bool)), float)
 
 
 def plan_depth(scene: Scene, state: State):

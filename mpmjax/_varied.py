@@ -22,7 +22,9 @@ __all__ = ["basal_parameters", "fit_parameters", "parameter_value", "replace_par
 
 def _basal(name: str, key: str, bounds: tuple[float, float]) -> _rheology.Param:
     k = SCHEMA[key]
-    return _rheology.Param(name, key, k.unit, k.doc, default=k.default, lo=k.lo, lo_open=k.lo_open, hi=k.hi, bounds=bounds)
+    return _rheology.Param(
+        name, key, k.unit, k.doc, default=k.default, lo=k.lo, lo_open=k.lo_open, hi=k.hi, bounds=bounds
+    )
 
 
 def basal_parameters() -> dict[str, _rheology.Param]:
@@ -45,7 +47,8 @@ def fit_parameters(params=None) -> dict[str, _rheology.Param]:
     declared = _rheology.parameters()
     out = {f: declared.get(f) for f in type(params.material)._fields}
     if params.basal is not None:
-        out.update({f: basal_parameters()[f] for f in type(params.basal)._fields if not _absent(getattr(params.basal, f))})
+        basal = basal_parameters()
+        out.update({f: basal[f] for f in type(params.basal)._fields if not _absent(getattr(params.basal, f))})
     return out
 
 

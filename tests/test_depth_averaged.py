@@ -145,7 +145,8 @@ def test_the_map_of_a_ritter_dam_break_reads_the_exact_depth():
     depth = np.asarray(bins(fin, grid)[0]).reshape(grid.shape)
     c0 = math.sqrt(G * H0)
     xi = (grid.lo[0] + grid.cell * (np.arange(grid.shape[0]) + 0.5) - X0) / T_R
-    exact = np.where(xi > 2 * c0, 0.0, np.where(xi < -c0, H0, (2 * c0 - xi) ** 2 / (9 * G)))[:, None] * np.ones(grid.shape)
+    exact = np.where(xi > 2 * c0, 0.0, np.where(xi < -c0, H0, (2 * c0 - xi) ** 2 / (9 * G)))
+    exact = exact[:, None] * np.ones(grid.shape)
     resolved = (xi[:, None] > -c0) & (exact >= 0.2 * H0)
     assert np.abs(depth - exact)[resolved].sum() / exact[resolved].sum() < 0.05
     assert depth.sum() * grid.cell**2 == pytest.approx(float(np.sum(np.asarray(fin.vol0 * fin.active))), rel=1e-12)

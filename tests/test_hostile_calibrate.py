@@ -174,3 +174,19 @@ def test_data_times_past_the_profiles_give_plain_numbers():
     _, overrides = _scene_overrides(TWIN, [], [0.3, np.float64(0.1), np.float64(0.45)], {})
     assert "time.t_end_s=0.45" in overrides
     assert mpmjax.load_scene(TWIN, overrides)["time.t_end_s"] == 0.45
+
+
+def test_a_fit_whose_model_turns_non_finite_ends_with_status_3_and_one_line(capsys, tmp_path, data, monkeypatch):
+    """A FloatingPointError from the fit (a non-finite loss or Jacobian, calibration.uncertainty) is the
+    model failing, not a bug: status 3 (as a failed run) and one line naming it, never a traceback (it
+    was a traceback until 2026-12-06, found by a float32 friction fit)."""
+
+    def nan_fit(*a, **k):
+        raise FloatingPointError("profiles.csv: non-finite Jacobian at {'friction': 0.283}")
+
+    monkeypatch.setattr("mpmjax.cli._calibrate.calibrate", nan_fit)
+    argv = ["calibrate", str(data), "--scene", TWIN, "--fit", "mu0", "--quiet", "--out", str(tmp_path / "o")]
+    assert cli.main(argv) == 3
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err, err
+    assert err.splitlines()[0] == "mpmjax: profiles.csv: non-finite Jacobian at {'friction': 0.283}", err
