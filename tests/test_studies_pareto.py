@@ -67,10 +67,14 @@ def test_ci_sweep(tmp_path):
     # 0.2 m block + 2 sqrt(9.81 * 0.2) * 0.3 s = 1.04 m
     ref = rows["ref h=0.01"]
     assert 0.3 < ref["runout_m"] < 0.2 + 2 * math.sqrt(9.81 * 0.2) * 0.3
-    # mass: the area under the free surface stays within 5 % of the 0.2 x 0.2 m block (measured
-    # 0.0403 m^2; kappa = 15 kPa allows ~1 % compression, the top bins add up to half a spacing)
+    # volume: the scene solves its pressure on the grid, which never compresses a fluid cell, but
+    # its particles dilate while the block collapses (deposit packing 0.81-0.91 during the first
+    # 2.3 s at h = 1 cm, docs/incompressible.md "Voids through the solve"), so the area under the
+    # free surface lies between the 0.2 x 0.2 m block's (less 2 %: the top bins' half spacing) and the
+    # block's over that lowest packing, 0.81 (measured 0.0431 m^2 at 0.3 s, +7.8 %; with the explicit
+    # pressure at kappa = 15 kPa it was 0.0403 m^2)
     area = float(np.sum(ref["profile_m"]) * doc["profile_bin_m"])
-    assert area == pytest.approx(0.04, rel=0.05)
+    assert 0.98 * 0.04 < area < 0.04 / 0.81
     assert ref["runout_err_m"] == 0.0 and ref["profile_rms_mm"] == 0.0
 
     # refinement 0.04 -> 0.02 m reduces both errors against the h = 0.01 m reference (measured

@@ -50,14 +50,18 @@ from .._schema import SceneError, load_scene
 from .._simulate import simulate
 
 SCENE = "dambreak-lab"
-DEFAULTS = {
-    "domain.cell_size_m": 0.01,
-    "numerics.ppc": 2,
-    "numerics.shape": "gimp",
-    "numerics.transfer": "apic",
-    "numerics.cfl": 0.4,
-    "numerics.dtype": "float32",
-}
+# the settings each row records, read from the scene with the row's overrides (so a change of the
+# scene's defaults shows in the table and is never mistaken for a finished row)
+SETTING_KEYS = (
+    "domain.cell_size_m",
+    "numerics.ppc",
+    "numerics.shape",
+    "numerics.transfer",
+    "numerics.flip_blend",
+    "numerics.cfl",
+    "numerics.dtype",
+    "numerics.pressure",
+)
 PROFILE_BIN_M = 0.02  # width of the x bins of the free-surface profile [m]
 
 F64 = {"numerics.dtype": "float64"}
@@ -162,7 +166,12 @@ def pareto_front(cost, err) -> list[bool]:
 
 
 def _settings(overrides: dict) -> dict:
-    return {**DEFAULTS, **overrides}
+    """The row's settings as run: the scene's values with the row's overrides."""
+    try:
+        cfg = load_scene(SCENE, overrides)
+    except SceneError:  # a rejected row: the scene's values with what it asked for
+        cfg = {**load_scene(SCENE), **overrides}
+    return {k: cfg[k] for k in SETTING_KEYS if k in cfg}
 
 
 def compile_final(s, rec: dict):
@@ -363,7 +372,7 @@ def run_pareto(size: str = "ci", out: Path | str = "docs", fresh: bool = False, 
         try:
             prev = json.loads(jpath.read_text())
             if prev.get("size") == size and prev.get("t_end_s") == t_end:
-                old = {json.dumps(r["overrides"], sort_keys=True): r for r in prev.get("rows", [])}
+                old = {json.dumps(r.get("settings"), sort_keys=True): r for r in prev.get("rows", [])}
         except (OSError, ValueError, KeyError):
             old = {}
     doc = {
@@ -387,13 +396,14 @@ def run_pareto(size: str = "ci", out: Path | str = "docs", fresh: bool = False, 
     log(HEADER)
     ref = None
     for i, (label, ov) in enumerate([reference, *cases]):
-        key = json.dumps(ov, sort_keys=True)
+        settings = _settings(ov)
+        key = json.dumps(_jsonable(settings), sort_keys=True)
         if key in old and old[key].get("status") in ("ok", "failed", "rejected") and "cpu_s" in old[key]:
             rec = dict(old[key])
             rec["reused"] = True
         else:
             rec = (_run_isolated if isolate else run_case)(ov, t_end, n_frames, edges)
-        rec.update(label=label, overrides=ov, settings=_settings(ov), is_reference=(i == 0))
+        rec.update(label=label, overrides=ov, settings=settings, is_reference=(i == 0))
         if i == 0:
             ref = rec
             if rec["status"] != "ok":
