@@ -207,12 +207,17 @@ def _not_carried(name, base) -> ValueError:
     )
 
 
-def check_names(names, params, option: str) -> None:
+def check_names(names, params, option: str, cfg=None) -> None:
     """ValueError naming ``option`` (e.g. ``--fit``) for the first of ``names`` that ``params`` (the
-    scene's ``mpmjax.Params``, e.g. ``mpmjax.make_params(cfg)``: no scene is built) does not carry."""
+    scene's ``mpmjax.Params``, e.g. ``mpmjax.make_params(cfg)``: no scene is built) does not carry,
+    or, given the scene's ``cfg``, that its step does not read (``mpmjax.unused_parameters``: a fit of
+    it would meet a flat loss)."""
+    unused = {} if cfg is None else mpmjax.unused_parameters(cfg)
     for n in names:
         if n not in _names(params):
             raise ValueError(f"{option} {n}: {_not_carried(n, params)}")
+        if n in unused:
+            raise ValueError(f"{option} {n}: not used by scene {cfg['name']!r}: {unused[n]}")
 
 
 class ParameterSet:

@@ -547,8 +547,8 @@ def calibrate(
         (profile_points, profile_width, profile_max_iter), refine_max_iter,
     )
     named = mpmjax.make_params(cfg)  # the names the scene carries, before it is built
-    check_names(names, named, "--fit")
-    check_names(init, named, "--init")
+    check_names(names, named, "--fit", cfg)
+    check_names(init, named, "--init", cfg)
     setup = mpmjax.build(cfg)
     time_set = any(o.split("=", 1)[0].strip() in ("time.t_end_s", "time.n_frames") for o in overrides_given or [])
     _check_reach(setup, runout_m, latest, time_set)

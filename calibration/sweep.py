@@ -251,8 +251,11 @@ def sweep(
     kept = None if keep is None else _read_kept(Path(keep), identity, resume)
     mpmjax.check_memory(cfg)  # before anything is built: a case that cannot fit is refused (MemoryRefused, exit 2)
     p_cfg = mpmjax.make_params(cfg)  # the names it carries, before the scene is built
-    fields = mpmjax.fit_parameters(p_cfg)
+    fields = mpmjax.fit_parameters(p_cfg, cfg)
+    unused = mpmjax.unused_parameters(cfg)
     for k in vary:
+        if k in unused:
+            raise ValueError(f"--vary {k}: not used by scene {cfg['name']!r}: {unused[k]} (every case would be the same)")
         if k not in fields:
             raise ValueError(
                 f"--vary {k}: not a parameter of scene {cfg['name']!r} ({cfg['material.model']}"

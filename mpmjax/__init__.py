@@ -13,7 +13,7 @@ Public API (modules are private; names are re-exported here):
   parameter NamedTuples; adding a law: ``Law``, ``Param``, ``Option``, ``Internal``,
   ``register_law``, ``unregister_law``; ``material_parameters()`` (name -> ``Param``: scene
   key, unit, default, range, calibration bounds), ``law_of(params)``; what a fit or a sweep can
-  vary by name, material and basal friction alike: ``fit_parameters``, ``basal_parameters``,
+  vary by name, material and basal friction alike: ``fit_parameters``, ``unused_parameters``, ``basal_parameters``,
   ``replace_parameters``, ``parameter_value``
 * time step: ``time_step_limits``; cost before a run is built: ``check_memory`` (refuses with
   ``MemoryRefused``, a ``SceneError``), ``STEPS_WARN`` and ``estimate_run_time_s``
@@ -69,7 +69,7 @@ from ._rheology import (
     law_of,
 )
 from ._rheology import parameters as material_parameters
-from ._varied import basal_parameters, fit_parameters, parameter_value, replace_parameters
+from ._varied import basal_parameters, fit_parameters, parameter_value, replace_parameters, unused_parameters
 from ._scene import Basal, Gate, Params, Scene, State, Wall, init_state, restate
 from ._schema import SCHEMA, SceneError, builtin_scenes, load_scene, register_law, unregister_law, validate
 from ._simulate import Frame, Pacer, chunkable, make_advance, make_chunk, make_steps, run, run_chunked, simulate
@@ -102,6 +102,7 @@ __all__ = [
     "fit_parameters",
     "basal_parameters",
     "replace_parameters",
+    "unused_parameters",
     "parameter_value",
     "runout",
     "free_surface_front",

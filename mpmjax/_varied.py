@@ -17,7 +17,7 @@ import numpy as np
 from . import _rheology
 from ._schema import SCHEMA
 
-__all__ = ["basal_parameters", "fit_parameters", "parameter_value", "replace_parameters"]
+__all__ = ["basal_parameters", "fit_parameters", "parameter_value", "replace_parameters", "unused_parameters"]
 
 
 def _basal(name: str, key: str, bounds: tuple[float, float]) -> _rheology.Param:
@@ -38,18 +38,40 @@ def basal_parameters() -> dict[str, _rheology.Param]:
     }
 
 
-def fit_parameters(params=None) -> dict[str, _rheology.Param]:
+def fit_parameters(params=None, cfg=None) -> dict[str, _rheology.Param]:
     """Name -> declaration of the parameters that can be fitted or varied: with ``params`` (a
     ``Params``), those it carries (its law's material fields, and the basal ones where it has a
-    ``Basal``); without, those of every registered law and the basal ones."""
+    ``Basal``); without, those of every registered law and the basal ones.  With ``cfg`` (the
+    scene's loaded configuration), less those its step does not read (``unused_parameters``)."""
     if params is None:
-        return {**_rheology.parameters(), **basal_parameters()}
-    declared = _rheology.parameters()
-    out = {f: declared.get(f) for f in type(params.material)._fields}
-    if params.basal is not None:
-        basal = basal_parameters()
-        out.update({f: basal[f] for f in type(params.basal)._fields if not _absent(getattr(params.basal, f))})
+        out = {**_rheology.parameters(), **basal_parameters()}
+    else:
+        declared = _rheology.parameters()
+        out = {f: declared.get(f) for f in type(params.material)._fields}
+        if params.basal is not None:
+            basal = basal_parameters()
+            out.update({f: basal[f] for f in type(params.basal)._fields if not _absent(getattr(params.basal, f))})
+    if cfg is not None:
+        for name in unused_parameters(cfg):
+            out.pop(name, None)
     return out
+
+
+def unused_parameters(cfg) -> dict[str, str]:
+    """Name -> why, for the parameters a scene carries but its step does not read, so that fitting or
+    varying one would change nothing (a flat loss, identical cases): the bulk modulus ``kappa`` where
+    the pressure is solved on the grid (``numerics.pressure = "incompressible"``) or the flow is
+    depth-averaged (``model.formulation``)."""
+    if cfg["model.formulation"] == "depth-averaged":
+        why = "the depth-averaged step (model.formulation = 'depth-averaged') has no bulk modulus"
+    elif cfg["numerics.pressure"] == "incompressible":
+        why = (
+            "numerics.pressure = 'incompressible' solves the pressure on the grid, so the bulk modulus "
+            "(material.bulk_modulus_pa) does not enter; set numerics.pressure=explicit to vary it"
+        )
+    else:
+        return {}
+    return {"kappa": why}
 
 
 def _absent(value) -> bool:

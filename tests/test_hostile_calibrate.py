@@ -142,6 +142,9 @@ def test_a_hostile_second_data_file_is_named(capsys, tmp_path, data, monkeypatch
         (["--profile-points", "4"], ("--profile-points = 4", "odd integer >= 3")),  # without --profile too
         # a basal coefficient on a scene without a frictional depth-averaged bed, named with what it needs
         (["--init", "friction=0.2"], ("--init friction", "allowed: rho, kappa, mu0", "depth-averaged scene")),
+        # the bulk modulus where the pressure is solved on the grid: a fit of it would meet a flat loss
+        (["--init", "kappa=1e5", "--set", "numerics.pressure=incompressible"],
+         ("--init kappa", "not used by scene", "set numerics.pressure=explicit")),
     ],
 )
 def test_an_option_is_blamed_on_itself(capsys, tmp_path, data, nothing_built, extra, words):

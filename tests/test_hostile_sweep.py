@@ -101,3 +101,20 @@ def test_a_basal_coefficient_on_a_scene_without_one_is_refused_before_it_is_buil
     monkeypatch.setattr(mpmjax, "build", lambda *a, **k: pytest.fail("a scene was built"))
     argv = ["sweep", TWIN, "--vary", "friction=0.1,0.2", "--quiet", "--out", str(tmp_path / "o")]
     _refused(capsys, argv, "--vary friction", "allowed: rho, kappa, mu0", "depth-averaged scene")
+
+
+def test_the_bulk_modulus_of_a_grid_pressure_scene_is_refused_before_it_is_built(capsys, tmp_path, monkeypatch):
+    """With the pressure solved on the grid the bulk modulus does not enter the step (bit-identical runs,
+    tests/test_pressure.py), so every case of a kappa sweep would be the same: refused, saying why and how
+    to vary it (``mpmjax.unused_parameters``), and no longer listed as a parameter that can vary."""
+    monkeypatch.setattr(mpmjax, "build", lambda *a, **k: pytest.fail("a scene was built"))
+    grid = ["--set", "numerics.pressure=incompressible"]
+    argv = ["sweep", TWIN, "--vary", "kappa=1e4,1e5", "--quiet", "--out", str(tmp_path / "o"), *grid]
+    _refused(capsys, argv, "--vary kappa", "not used by scene", "set numerics.pressure=explicit")
+    argv = ["sweep", TWIN, "--vary", "friction=0.1,0.2", "--quiet", "--out", str(tmp_path / "o"), *grid]
+    _refused(capsys, argv, "--vary friction", "allowed: rho, mu0")
+    cfg = mpmjax.load_scene(TWIN, ["numerics.pressure=incompressible"])
+    assert "kappa" not in mpmjax.fit_parameters(mpmjax.make_params(cfg), cfg)
+    assert "kappa" in mpmjax.fit_parameters(mpmjax.make_params(cfg))
+    da = mpmjax.load_scene("field-dambreak-da")  # the depth-averaged step has no bulk modulus either
+    assert "kappa" in mpmjax.unused_parameters(da) and "kappa" not in mpmjax.fit_parameters(mpmjax.make_params(da), da)
