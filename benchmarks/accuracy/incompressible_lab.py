@@ -1,8 +1,8 @@
 """The lab dam break (dambreak-lab, 15 s) with --set style overrides: runout (free-surface front),
 dt, steps, compile and loop wall/CPU time and the deposit packing, as one JSON line (docs/validation.md, "Incompressible limit").
 
-    .venv/bin/python benchmarks/accuracy/incompressible_lab.py numerics.pressure=incompressible
-    .venv/bin/python benchmarks/accuracy/incompressible_lab.py material.bulk_modulus_pa=150000
+    .venv/bin/python benchmarks/accuracy/incompressible_lab.py      # the scene as shipped: the grid pressure since 2026-12-06
+    .venv/bin/python benchmarks/accuracy/incompressible_lab.py numerics.pressure=explicit material.bulk_modulus_pa=150000
 """
 import json
 import sys
