@@ -118,7 +118,7 @@ def ci_tolerance(tau_prime: float, h_over_H: float) -> float:
     return 0.30 + h_over_H / abs(2 * tau_prime * math.log(2 * tau_prime))
 
 
-def test_slump_test_scene_ci(tmp_path):
+def test_slump_test_scene_ci(tmp_path, no_result_pictures):
     slumps, backs = [], []
     for tau in CI_TAU:
         out = tmp_path / f"tau{tau:g}"
