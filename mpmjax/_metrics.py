@@ -477,12 +477,16 @@ CHANNEL_MIN_SPEED_M_S = 0.01
 PLAN_MIN_COUNT = 2
 
 
-def plan_view_summary(result, path=None) -> dict:
+def plan_view_summary(result, path=None, plan=None) -> dict:
     """Lobe width, plan-view viscosity map and channel metric of a 3D run for summary.json.
 
     ``result``: the dict of ``mpmjax._io.read_result`` (the scene is read from its
     ``scene_config_json``).  The plan-view grid is the run's grid in x and y (bins of one
     cell size h).  With ``path``, every frame's maps are written there (``write_plan_view``).
+    ``plan``: the built scene of a depth-averaged run, whose thickness maps (and so the lobe width
+    and covered area) are then the step's own depth on each cell (``_shallow.cell_depth_map``, as
+    its hazard maps) instead of the rest volumes binned by particle position, which scatter by a
+    third about it as the columns drift in and out of the bins (docs/depth-averaged.md, "Maps").
     Returns a JSON-ready dict (definitions in docs/output.md).
     """
     cfg = json.loads(result["attrs"]["scene_config_json"])
@@ -500,6 +504,12 @@ def plan_view_summary(result, path=None) -> dict:
     fr = result["frames"]
     vol = np.asarray(result["particles"]["vol0_m3"], float)  # rest volumes: J drifts (thickness_map)
     maps = plan_view_series(fr["x_m"], fr["v_m_s"], fr["mu_pa_s"], fr["active"], vol, xe, ye, min_count=PLAN_MIN_COUNT)
+    if plan is not None:
+        depth = [cell_depth_map(plan, x, vol, a) for x, a in zip(fr["x_m"], fr["active"])]
+        if depth and depth[0].shape != maps["thickness_m"][0].shape:
+            raise ValueError(f"plan_view_summary: the plan's cells {depth[0].shape} are not the bins "
+                             f"{maps['thickness_m'][0].shape}")
+        maps["thickness_m"] = np.stack(depth) if depth else maps["thickness_m"]
     t = np.asarray(fr["t_s"], float)
     xc = 0.5 * (xe[1:] + xe[:-1])
 
@@ -539,6 +549,8 @@ def plan_view_summary(result, path=None) -> dict:
         "lobe_threshold_fraction": LOBE_THRESHOLD_FRACTION,
         "symmetry_y_m": sym_y,
         "scene": cfg["name"],
+        "thickness": "the depth-averaged step's depth on each cell" if plan is not None
+        else "rest volume of the particles in each bin over its area",
     }
     if path is not None:
         write_plan_view(path, t, xe, ye, maps, attrs)

@@ -34,6 +34,7 @@ measured figures):
 
 from __future__ import annotations
 
+import json
 import math
 
 import jax
@@ -116,7 +117,7 @@ def test_ritter_dam_break_depth_and_front(ritter):
     assert 0.8 * 2 * c0 * T_R < far <= 1.0 * 2 * c0 * T_R
 
 
-def test_the_map_of_a_ritter_dam_break_reads_the_exact_depth():
+def test_the_map_of_a_ritter_dam_break_reads_the_exact_depth(tmp_path):
     """The depth-averaged run's plan-view maps (hazard rasters, deposit thickness, front; ``_hazard.bins``
     with the scene as ``HazardGrid.plan``: the mean of each cell's corner nodes of the step's own depth)
     on the Ritter dam break in the map (domain.dim = 3, 4 cells wide between slip walls, H0 = 0.1 m,
@@ -150,6 +151,20 @@ def test_the_map_of_a_ritter_dam_break_reads_the_exact_depth():
     resolved = (xi[:, None] > -c0) & (exact >= 0.2 * H0)
     assert np.abs(depth - exact)[resolved].sum() / exact[resolved].sum() < 0.05
     assert depth.sum() * grid.cell**2 == pytest.approx(float(np.sum(np.asarray(fin.vol0 * fin.active))), rel=1e-12)
+    # plan_view.h5 takes the same depth (it binned the columns by position until 2026-12-06)
+    from mpmjax._io import _jsonable
+    from mpmjax._metrics import plan_view_summary, read_plan_view
+
+    n = int(fin.x.shape[0])
+    frames = {"x_m": np.asarray(fin.x)[None], "v_m_s": np.asarray(fin.v)[None], "active": np.asarray(fin.active)[None],
+              "mu_pa_s": np.full((1, n), 1e-12), "t_s": np.array([T_R])}
+    res = {"attrs": {"scene_config_json": json.dumps(_jsonable(cfg))}, "frames": frames,
+           "particles": {"vol0_m3": np.asarray(fin.vol0)}}
+    summary = plan_view_summary(res, tmp_path / "plan_view.h5", plan=s.scene)
+    pv = read_plan_view(tmp_path / "plan_view.h5")
+    np.testing.assert_allclose(pv["thickness_m"][-1], depth, rtol=1e-6, atol=1e-9)  # stored as float32
+    assert "depth-averaged step" in pv["attrs"]["thickness"]
+    assert summary["plan_view"]["final_max_thickness_m"] == pytest.approx(float(depth.max()), abs=1e-6)  # 6 decimals
 
 
 def test_mass_exact_and_depth_never_negative(ritter):

@@ -72,7 +72,9 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
     steps = [([], measure), (["result.xdmf"], lambda: write_xdmf(out / "result.h5"))]  # xdmf: ParaView / VisIt
     if sc.dim == 3:
         # lobe width, plan-view maps (plan_view.h5) and the channel metric: mpmjax._metrics, docs/output.md
-        steps.append((["plan_view.h5"], lambda: c["summary"].update(_metrics.plan_view_summary(c["res"], pv))))
+        steps.append((["plan_view.h5"], lambda: c["summary"].update(
+            _metrics.plan_view_summary(c["res"], pv, plan=sc if sc.formulation == "depth-averaged" else None)
+        )))
     if hazard:
         steps.append(([HAZARD_FILES], write_hazard))
     steps.append((["summary.json"], lambda: _write_progress(out, c["summary"], steps, at["step"])))
