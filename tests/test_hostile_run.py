@@ -19,7 +19,7 @@ import mpmjax
 from mpmjax import cli
 from mpmjax._build import start_warnings
 
-SMALL = ["domain.cell_size_m=0.04", "time.t_end_s=0.3", "time.n_frames=3"]
+SMALL = ["domain.cell_size_m=0.04", "time.t_end_s=0.3", "time.n_frames=3", "numerics.pressure=explicit"]
 SETS = [a for s in SMALL for a in ("--set", s)]
 
 

@@ -35,6 +35,7 @@ def test_top_level_keys_and_meta(doc):
     # the XLA triad reused its donated buffer: no fresh (page-faulting) allocation was timed
     assert bw["xla_output_donated"] is True
     assert m["reps"] == 1 and m["only"] == "scenes,scaling,gradient,batch"
+    assert m["quick_overrides"] == {"domain.cell_size_m": 0.02, "numerics.pressure": "explicit"}
 
 
 def test_default_scene_and_mpm88_entries_are_kept(doc):
