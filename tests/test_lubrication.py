@@ -63,11 +63,14 @@ def test_bad_input_names_the_field(kwargs, field):
         lub.slump_profiles(**args)
 
 
-def test_validate_records_the_lubrication_front_at_every_frame():
+def test_validate_records_the_lubrication_front_at_every_frame(tmp_path):
     """A ci-size slump (4 cells over H0, 0.5 s) through validate's case: the lubrication fronts at its
-    frame times next to the run's, and the check at t_end (a ci run claims no pass)."""
-    rec = {"tolerance": 0.05}
+    frame times next to the run's, and the check at t_end (a ci run claims no pass); the page's third
+    panel draws them."""
+    rec = {"tolerance": 0.05, "status": "ok"}
     validate.CASES["slump-lubrication-B0.5-a3"].run("ci", {}, rec)
+    validate.plot({"size": "ci", "cases": {"slump-lubrication-B0.5-a3": rec}}, tmp_path / "v.png")
+    assert (tmp_path / "v.png").stat().st_size > 0
     assert len(rec["lubrication_fronts_m"]) == len(rec["fronts_m"]) == len(rec["frame_times_s"])
     names = [c["name"] for c in rec["checks"]]
     assert names == ["front vs x_inf", "front vs lubrication at t_end"]

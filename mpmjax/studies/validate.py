@@ -855,7 +855,8 @@ def markdown(doc: dict) -> str:
 
 
 def plot(doc: dict, path: Path) -> None:
-    """One page: |error| per case as bars against its tolerance, and |error| against CPU seconds."""
+    """One page: |error| per case as bars against its tolerance, and |error| against CPU seconds; with
+    slump cases, their fronts against time over x_inf, the run's and the lubrication solution's."""
     import matplotlib  # only when a plot is made (optional heavy import)
 
     matplotlib.use("Agg")
@@ -863,7 +864,11 @@ def plot(doc: dict, path: Path) -> None:
 
     names = list(doc["cases"])
     recs = [doc["cases"][n] for n in names]
-    fig, (ax, axc) = plt.subplots(2, 1, figsize=(8.27, 11.0))
+    slumps = [(n, r) for n, r in zip(names, recs) if r.get("lubrication_fronts_m")]
+    if slumps:
+        fig, (ax, axc, axs) = plt.subplots(3, 1, figsize=(8.27, 11.69), height_ratios=(1.2, 1.0, 1.0))
+    else:
+        fig, (ax, axc) = plt.subplots(2, 1, figsize=(8.27, 11.0))
     xs = np.arange(len(names))
     err = [abs(r["error"]) * 100 if r.get("error") is not None else 0.0 for r in recs]
     colour = [
@@ -893,6 +898,17 @@ def plot(doc: dict, path: Path) -> None:
     axc.set_ylabel("|relative error| [%]")
     axc.set_title("error against CPU time (numbers: the cases above)", fontsize=9)
     axc.grid(alpha=0.3, which="both")
+    for k, (n, r) in enumerate(slumps):
+        t, xinf = r["frame_times_s"], r["reference"]
+        axs.plot(t, np.asarray(r["lubrication_fronts_m"]) / xinf, "-", color=f"C{k}", label=n)
+        axs.plot(t, np.asarray(r["fronts_m"]) / xinf, "o", color=f"C{k}")
+    if slumps:
+        axs.axhline(1.0, color="k", lw=0.8)
+        axs.set_xlabel("t [s]")
+        axs.set_ylabel("headline front / x_inf")
+        axs.set_title("inertia-free slumps: the run's front (dots) and the lubrication solution's (lines)", fontsize=9)
+        axs.legend(fontsize=7, ncol=2)
+        axs.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
