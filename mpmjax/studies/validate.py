@@ -138,12 +138,10 @@ def lubrication_t_end(size: str, bingham: float, aspect: float) -> float:
 def lubrication_xinf(bingham: float, aspect: float, h0: float = LUB_H0) -> float:
     """Final front x_inf [m] of an inertia-free Bingham block H0 x L (L = aspect H0) against a wall
     (REFERENCE.md; Balmforth et al. 2006, Matson & Hogg 2007): L + rho g H0^2/(6 tau_y) for
-    B >= 1/3, (9 rho g H0^2 L^2/(8 tau_y))^(1/3) for B <= 1/3, with B = tau_y L/(rho g H0^2)."""
+    B >= 1/3, (9 rho g H0^2 L^2/(8 tau_y))^(1/3) for B <= 1/3, with B = tau_y L/(rho g H0^2)
+    (``lubrication.static_front``, of the suite's rho and g)."""
     length = aspect * h0
-    tau = bingham * RHO * G * h0**2 / length
-    if bingham >= 1.0 / 3.0:
-        return length + RHO * G * h0**2 / (6 * tau)
-    return (9 * RHO * G * h0**2 * length**2 / (8 * tau)) ** (1.0 / 3.0)
+    return lubrication.static_front(length, h0, bingham * RHO * G * h0**2 / length, RHO, G)
 
 
 def _lubrication_cfgs(size: str, base: dict, bingham: float, aspect: float) -> list[dict]:
