@@ -17,7 +17,8 @@ CPU seconds.  Times are the time loop's (compile excluded): ``time.process_time`
 and wall clock; a case of several runs sums them.
 
 A case with several checks (``lab-kappa``; the inertia-free slumps: x_inf, and the same slump in the
-lubrication limit solved to the run's end time, ``lubrication``) reports the check with the largest
+lubrication limit solved to the run's end time, ``lubrication``; the held block: its front and its
+thickest point against its own at t = 0) reports the check with the largest
 error/tolerance ratio as its error; all checks are in ``checks``.
 """
 
@@ -208,6 +209,64 @@ def _lubrication(bingham: float, aspect: float):
         rec["checks"] = [
             _check("front vs x_inf", fronts[-1], xinf, rec["tolerance"]),
             _check("front vs lubrication at t_end", fronts[-1], lub_fronts[-1], rec["tolerance"]),
+        ]
+
+    return cfgs, run
+
+
+# --------------------------------------------------------------------------------------
+# a block that must not slump: tau_y >= rho g H0 / 2 (exact: the lower-bound theorem)
+# --------------------------------------------------------------------------------------
+
+
+def holds(bingham: float, aspect: float) -> bool:
+    """True when the inertia-free slumps' block (H0, L = aspect H0, B = tau_y L/(rho g H0^2)) must
+    stand still as a Bingham material: tau_y/(rho g H0) = B/aspect >= 1/2.
+
+    Then sigma_yy = -rho g (H0 - y), sigma_xx = sigma_xy = 0 (sigma_zz their mean) balances gravity,
+    leaves the free faces and the symmetry wall traction-free in shear, and its shear stress
+    rho g (H0 - y)/2 is at most tau_y everywhere (equal only on the bed). Any velocity field then
+    does at least as much plastic work as gravity does on it, so v = 0 minimises the Bingham
+    functional (the lower-bound theorem of plasticity; Pashias et al.'s slump s' = 1 - 2 tau'(1 - ln
+    2 tau') is 0 at tau' = 1/2). Lubrication theory, which assumes a shallow layer, spreads the same
+    block to x_inf = L + H0/3."""
+    return bingham / aspect >= 0.5
+
+
+def _held(bingham: float, aspect: float):
+    """The block of ``_lubrication_cfgs``, checked against itself at t = 0 (``holds``)."""
+
+    def cfgs(size, base):
+        if not holds(bingham, aspect):
+            raise ValueError(f"B = {bingham:g}, L = {aspect:g} H0 slumps (tau_y < rho g H0 / 2)")
+        return _lubrication_cfgs(size, base, bingham, aspect)
+
+    def run(size, base, rec):
+        (cfg,) = cfgs(size, base)
+        s, final, fronts, times = _run_frames(cfg, rec)
+        if _failed(rec, final, s.scene.n_particles):
+            return
+        # the exact deposit is the block itself, measured by the same gauge: on its vertical face the
+        # kernel front reads about 1.3 h beyond L (Gaussian bandwidth h, 10 % threshold), the same in both
+        gauge = RunoutGauge.of(s.scene, s.info)
+        st0 = s.state
+        a0, af = np.asarray(st0.active, bool), np.asarray(final.active, bool)
+        front0 = gauge.front(np.asarray(st0.x), np.asarray(st0.vol0), a0)
+        top0 = gauge.max_thickness(np.asarray(st0.x), np.asarray(st0.vol0), a0)
+        top = gauge.max_thickness(np.asarray(final.x), np.asarray(final.vol0), af)
+        rec.update(
+            reference=front0,
+            measured=fronts[-1],
+            fronts_m=fronts,
+            frame_times_s=times,
+            thickest_m={"t0": top0, "t_end": top},
+            lubrication_xinf_m=lubrication_xinf(bingham, aspect),  # what the shallow theory would say (not valid)
+            unit="m",
+            max_speed_m_s=float(np.abs(np.asarray(final.v)[af]).max()),
+        )
+        rec["checks"] = [
+            _check("front vs the block's own at t = 0", fronts[-1], front0, rec["tolerance"]),
+            _check("thickest point vs the block's own at t = 0", top, top0, rec["tolerance"]),
         ]
 
     return cfgs, run
@@ -679,7 +738,19 @@ CASES: dict[str, Case] = {
             "loop CPU measured on 2 shared cores (explicit / incompressible) to 60 s: 159 s / 70 s; to 240 s: "
             "1562 s / 450 s",
         ),
-        _lub_case(0.5, 1, "loop CPU measured on 2 shared cores (explicit / incompressible): 105 s / 32 s"),
+        Case(
+            "slump-held-B0.5-a1",
+            "the inertia-free slumps' block at B = 0.5, L = H0 (tau_y = rho g H0 / 2), Galileo 1, no-slip bed; "
+            "full: 16 cells over H0, 60 s (until 2026-12-06 slump-lubrication-B0.5-a1, against x_inf)",
+            "no slump: a Bingham block with tau_y >= rho g H0 / 2 stands still (the uniaxial stress field is at or "
+            "below yield everywhere: the lower-bound theorem, validate.holds; Pashias's s' = 0 at tau' = 1/2); "
+            "the reference is what the run's own gauge reads on the block at t = 0 (front and thickest point)",
+            0.05,
+            "the same 5 % as the other slumps, of a reference measured by the same gauge on the same block (the "
+            "kernel front's +1.3 h on a vertical face cancels)",
+            *_held(0.5, 1),
+            "loop CPU measured on 2 shared cores (explicit / incompressible): 105 s / 32 s",
+        ),
         _lub_case(
             0.5,
             3,
@@ -862,7 +933,7 @@ def plot(doc: dict, path: Path) -> None:
 
     names = list(doc["cases"])
     recs = [doc["cases"][n] for n in names]
-    slumps = [(n, r) for n, r in zip(names, recs) if r.get("lubrication_fronts_m")]
+    slumps = [(n, r) for n, r in zip(names, recs) if r.get("lubrication_fronts_m") or r.get("thickest_m")]
     if slumps:
         fig, (ax, axc, axs) = plt.subplots(3, 1, figsize=(8.27, 11.69), height_ratios=(1.2, 1.0, 1.0))
     else:
@@ -897,14 +968,21 @@ def plot(doc: dict, path: Path) -> None:
     axc.set_title("error against CPU time (numbers: the cases above)", fontsize=9)
     axc.grid(alpha=0.3, which="both")
     for k, (n, r) in enumerate(slumps):
-        t, xinf = r["frame_times_s"], r["reference"]
-        axs.plot(t, np.asarray(r["lubrication_fronts_m"]) / xinf, "-", color=f"C{k}", label=n)
-        axs.plot(t, np.asarray(r["fronts_m"]) / xinf, "o", color=f"C{k}")
+        t, ref = r["frame_times_s"], r["reference"]
+        if r.get("lubrication_fronts_m"):
+            axs.plot(t, np.asarray(r["lubrication_fronts_m"]) / ref, "-", color=f"C{k}", label=n)
+            axs.plot(t, np.asarray(r["fronts_m"]) / ref, "o", color=f"C{k}")
+        else:  # a held block: its reference is its own front at t = 0
+            axs.plot(t, np.asarray(r["fronts_m"]) / ref, "s--", color=f"C{k}", label=f"{n} (over its t = 0 front)")
     if slumps:
         axs.axhline(1.0, color="k", lw=0.8)
         axs.set_xlabel("t [s]")
-        axs.set_ylabel("headline front / x_inf")
-        axs.set_title("inertia-free slumps: the run's front (dots) and the lubrication solution's (lines)", fontsize=9)
+        axs.set_ylabel("headline front / reference")
+        axs.set_title(
+            "inertia-free slumps: the run's front (dots) and the lubrication solution's (lines) over x_inf; "
+            "a held block (squares) over its own",
+            fontsize=9,
+        )
         axs.legend(fontsize=7, ncol=2)
         axs.grid(alpha=0.3)
     fig.tight_layout()
