@@ -177,15 +177,23 @@ def _lubrication_cfgs(size: str, base: dict, bingham: float, aspect: float) -> l
     return [validate(_nested(raw, base))]
 
 
+def _run_block(cfgs: Callable, size: str, base: dict, rec: dict):
+    """Run the one config of a block case; (cfg, setup, final state, fronts, times), or None when the
+    run failed (``rec`` then says why)."""
+    (cfg,) = cfgs(size, base)
+    s, final, fronts, times = _run_frames(cfg, rec)
+    return None if _failed(rec, final, s.scene.n_particles) else (cfg, s, final, fronts, times)
+
+
 def _lubrication(bingham: float, aspect: float):
     def cfgs(size, base):
         return _lubrication_cfgs(size, base, bingham, aspect)
 
     def run(size, base, rec):
-        (cfg,) = cfgs(size, base)
-        s, final, fronts, times = _run_frames(cfg, rec)
-        if _failed(rec, final, s.scene.n_particles):
+        ran = _run_block(cfgs, size, base, rec)
+        if ran is None:
             return
+        cfg, _, final, fronts, times = ran
         xinf = lubrication_xinf(bingham, aspect)
         # the same slump in the lubrication limit at the frames' times, its front measured as the run's headline
         # front: x_inf is where it ends, and at a Galileo number of 1 it has not got there by 60 s (B = 0.05,
@@ -242,10 +250,10 @@ def _held(bingham: float, aspect: float):
         return _lubrication_cfgs(size, base, bingham, aspect)
 
     def run(size, base, rec):
-        (cfg,) = cfgs(size, base)
-        s, final, fronts, times = _run_frames(cfg, rec)
-        if _failed(rec, final, s.scene.n_particles):
+        ran = _run_block(cfgs, size, base, rec)
+        if ran is None:
             return
+        _, s, final, fronts, times = ran
         # the exact deposit is the block itself, measured by the same gauge: on its vertical face the
         # kernel front reads about 1.3 h beyond L (Gaussian bandwidth h, 10 % threshold), the same in both
         gauge = RunoutGauge.of(s.scene, s.info)
