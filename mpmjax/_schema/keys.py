@@ -159,8 +159,7 @@ _HEAD: dict[str, Key] = {
         "shear waves no faster than the flow) and tau_y the law's yield stress (so that material held at its yield "
         f"stress strains at most {100 / _constitutive.MAXWELL_YIELD_FACTOR:g} % elastically). A deposit at its yield "
         "limit deforms by about 2-3 tau_y/G of its size (a block that must stand moves +10 % at 20 tau_y, +3.4 % at "
-        "100, +0.6 % at 400: validate's slump-held-B0.5-a1); for stability questions set G >= 100 tau_y, at a cost "
-        "that grows as sqrt(G).",
+        "100, +0.6 % at 400: validate's slump-held-B0.5-a1); a larger G costs steps as sqrt(G).",
         lo=0.0,
     ),
     "numerics.velocity_scale_m_s": Key(

@@ -738,7 +738,7 @@ CASES: dict[str, Case] = {
         _lub_case(
             0.05,
             1,
-            "loop CPU measured on 2 shared cores (explicit / incompressible): 95 s / 43 s (193 584 / 48 292 steps)",
+            "loop CPU measured on 2 shared cores (explicit / incompressible), 60 s, 2026-12-06: 199 s / 83 s",
         ),
         _lub_case(
             0.05,
@@ -757,13 +757,14 @@ CASES: dict[str, Case] = {
             "the same 5 % as the other slumps, of a reference measured by the same gauge on the same block (the "
             "kernel front's +1.3 h on a vertical face cancels)",
             *_held(0.5, 1),
-            "loop CPU measured on 2 shared cores (explicit / incompressible), 60 s: 194 s / 89 s (290 376 / 120 420 "
+            "loop CPU measured on 2 shared cores (explicit / incompressible), 60 s: 194 s / 173 s (290 376 / 227 708 "
             "steps)",
         ),
         _lub_case(
             0.5,
             3,
-            "loop CPU measured on 2 shared cores (explicit / incompressible): 259 s / 77 s (the dearest slump to 60 s)",
+            "loop CPU measured on 2 shared cores (explicit / incompressible), 60 s, 2026-12-06: 525 s / 298 s (the "
+            "dearest slump to 60 s)",
         ),
         Case(
             "slump-inertial",
