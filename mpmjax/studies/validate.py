@@ -989,8 +989,7 @@ def plot(doc: dict, path: Path) -> None:
         axs.set_xlabel("t [s]")
         axs.set_ylabel("headline front / reference")
         axs.set_title(
-            "inertia-free slumps: the run's front (dots) and the lubrication solution's (lines) over x_inf; "
-            "a held block (squares) over its own",
+            "slumps: the run (dots) and lubrication (lines) over x_inf; the held block (squares) over its t = 0 front",
             fontsize=9,
         )
         axs.legend(fontsize=7, ncol=2)
