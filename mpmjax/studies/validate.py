@@ -396,8 +396,14 @@ def _poiseuille(bingham: bool):
 # --------------------------------------------------------------------------------------
 
 INCLINE_H, INCLINE_SLOPE, INCLINE_MU, INCLINE_R = 0.1, 30.0, 20.0, 1.1  # depth [m], [deg], [Pa s], tau_b / tau_y
-INCLINE_SIZE = {"full": {"cells": 20, "t_end": 1.0}, "ci": {"cells": 5, "t_end": 0.1}}  # cells across the depth
-INCLINE_AVERAGE_S = 0.3  # the plug speed is averaged over the frames of the run's last 0.3 s
+# cells across the depth; t_end: the reference is the steady film, and a layer started from rest with a soft
+# Maxwell modulus reaches it slowly (the plug's elastic start-up: within 1 % of the film speed after 2.4 s at the
+# grid pressure's floor G = 100 tau_y, about 6 s at 20 tau_y, 0.2 s at G = kappa), so the full size runs 4 s; at
+# 1 s it read +5.75 % / +27.9 % at those floors, a transient, and -0.1 % / +0.9 % at 6 s (docs/incompressible.md,
+# "At the yield limit")
+INCLINE_SIZE = {"full": {"cells": 20, "t_end": 4.0}, "ci": {"cells": 5, "t_end": 0.1}}
+INCLINE_AVERAGE_S = 1.0  # the plug speed is averaged over the frames of the run's last 1 s
+INCLINE_SETTLED = 0.01  # settle_time_s: from when on the plug speed stays within 1 % of the film speed
 
 
 def incline_config(cells: int, r: float, t_end: float, base: dict) -> dict:
@@ -443,7 +449,7 @@ def incline_top(setup) -> np.ndarray:
 
 # the coarse near-yield layer: delta = 0.45 h, under half the first cell, with the Maxwell modulus pinned stiff
 # (the explicit default's G = kappa), so that the bed's arrest criterion and not the modulus is measured
-INCLINE_BED_SIZE = {"full": {"cells": 5, "t_end": 1.0}, "ci": {"cells": 5, "t_end": 0.4}}
+INCLINE_BED_SIZE = {"full": {"cells": 5, "t_end": 4.0}, "ci": {"cells": 5, "t_end": 0.4}}
 INCLINE_BED_PIN = {"numerics.maxwell_shear_modulus_pa": 2e5}
 
 
@@ -461,14 +467,17 @@ def _incline(sizes, pin=None):
         speeds = []
 
         def plug(s, st):
-            if float(st.t) >= t_end - INCLINE_AVERAGE_S - 1e-9:
-                speeds.append(np.asarray(st.v)[incline_top(s), 0].mean())
+            speeds.append(float(np.asarray(st.v)[incline_top(s), 0].mean()))
 
-        s, final, _, _ = _run_frames(cfg, rec, each=plug)
+        s, final, _, times = _run_frames(cfg, rec, each=plug)
         if _failed(rec, final, s.scene.n_particles):
             return
-        u, exact = float(np.mean(speeds)), incline_plug_speed(INCLINE_R)
-        rec.update(reference=exact, measured=u, unit="m/s")
+        exact = incline_plug_speed(INCLINE_R)
+        u = float(np.mean([v for v, t in zip(speeds, times) if t >= t_end - INCLINE_AVERAGE_S - 1e-9]))
+        off = [abs(v / exact - 1.0) > INCLINE_SETTLED for v in speeds]
+        settled = None if off[-1] else (times[max(i for i, o in enumerate(off) if o) + 1] if any(off) else times[0])
+        rec.update(reference=exact, measured=u, unit="m/s", plug_speeds_m_s=speeds, frame_times_s=list(times))
+        rec["settle_time_s"] = settled  # the frame from which the plug stays within 1 % of the film (None: never)
         rec["checks"] = [_check("plug speed vs the Bingham film", u, exact, rec["tolerance"])]
 
     return cfgs, run
@@ -800,18 +809,19 @@ CASES: dict[str, Case] = {
         Case(
             "bingham-incline",
             "a Bingham layer 0.1 m deep on a 30-degree no-slip incline (periodic), tau_y = tau_b / 1.1, mu 20 Pa s, "
-            "20 cells across the depth (the sheared layer 1.8 cells), 1 s",
+            "20 cells across the depth (the sheared layer 1.8 cells), 4 s (the plug averaged over the last 1 s)",
             "the film's plug speed rho g sin(theta) delta^2 / (2 mu), delta = H (1 - tau_y / tau_b)",
             0.05,
             "5 %: the arrest regime, where a grid with one strain rate per cell row is off by -1 % here (+0.3 % "
-            "measured explicit) and a soft Maxwell modulus by tens of per cent (docs/incompressible.md)",
+            "measured explicit); the steady film does not depend on the Maxwell modulus, the time to reach it does "
+            "(settle_time_s; +5.75 % at 1 s with the grid pressure's floor: docs/incompressible.md)",
             *_incline(INCLINE_SIZE),
             "loop CPU measured on 2 shared cores (explicit / incompressible): 1.0 s / 0.4 s (11 490 / 2 420 steps)",
         ),
         Case(
             "bingham-incline-bed",
             "the same layer at 5 cells across the depth (the sheared layer 0.45 h, under half the bed's cell row), "
-            "the Maxwell modulus pinned at 200 kPa, 1 s: where the no-slip bed's row tests its yield stress",
+            "the Maxwell modulus pinned at 200 kPa, 4 s: where the no-slip bed's row tests its yield stress",
             "the film's plug speed rho g sin(theta) delta^2 / (2 mu), delta = H (1 - tau_y / tau_b)",
             0.05,
             "5 %, as bingham-incline: with the yield tested h/2 above the bed the layer is held (-98 %), tested "
