@@ -816,7 +816,7 @@ CASES: dict[str, Case] = {
             "measured explicit); the steady film does not depend on the Maxwell modulus, the time to reach it does "
             "(settle_time_s; +5.75 % at 1 s with the grid pressure's floor: docs/incompressible.md)",
             *_incline(INCLINE_SIZE),
-            "loop CPU measured on 2 shared cores (explicit / incompressible): 1.0 s / 0.4 s (11 490 / 2 420 steps)",
+            "loop CPU measured on 2 shared cores (explicit / incompressible), 4 s, 2026-12-06: 4.2 s / 2.7 s (45 960 / 18 170 steps)",
         ),
         Case(
             "bingham-incline-bed",
@@ -827,7 +827,7 @@ CASES: dict[str, Case] = {
             "5 %, as bingham-incline: with the yield tested h/2 above the bed the layer is held (-98 %), tested "
             "at the bed (numerics.wall_yield = wall) -1.7 % measured explicit (docs/wall-yield.md)",
             *_incline(INCLINE_BED_SIZE, INCLINE_BED_PIN),
-            "loop CPU measured on 2 shared cores (explicit / incompressible): 0.3 s / 0.4 s (2 900 steps)",
+            "loop CPU measured on 2 shared cores (explicit / incompressible), 4 s, 2026-12-06: 0.3 s / 0.6 s (11 590 / 8 950 steps)",
         ),
         Case(
             "water-ritter",
