@@ -406,6 +406,15 @@ INCLINE_AVERAGE_S = 1.0  # the plug speed is averaged over the frames of the run
 INCLINE_SETTLED = 0.01  # settle_time_s: from when on the plug speed stays within 1 % of the film speed
 
 
+# the same layer over large strains: r = 1.2 (delta = 3.3 cells at 20 cells), 16 s, a bed shear strain of about 65;
+# the plug averaged over the last 2 s.  In float32 the grid pressure's layer leaves the film from about 6 s, the
+# particles' pressure's from about 12 s with its particles perturbed (docs/incompressible-default.md, "The incline
+# in time"): a stress case for long shear
+INCLINE_LONG_R = 1.2
+INCLINE_LONG_SIZE = {"full": {"cells": 20, "t_end": 16.0, "frames": 20}, "ci": {"cells": 5, "t_end": 0.2, "frames": 2}}
+INCLINE_LONG_AVERAGE_S = 2.0
+
+
 def incline_config(cells: int, r: float, t_end: float, base: dict) -> dict:
     """A Bingham layer INCLINE_H deep on an INCLINE_SLOPE no-slip incline, periodic along it (4 cells),
     free surface, ``cells`` across its depth, tau_y = tau_b / ``r`` (tau_b = rho g H sin(theta), the bed
@@ -453,13 +462,15 @@ INCLINE_BED_SIZE = {"full": {"cells": 5, "t_end": 4.0}, "ci": {"cells": 5, "t_en
 INCLINE_BED_PIN = {"numerics.maxwell_shear_modulus_pa": 2e5}
 
 
-def _incline(sizes, pin=None):
-    """(cfgs, run) of a near-yield incline case at the cells / t_end of ``sizes``; ``pin``: numerics the case
-    sets itself (a --set of the same key wins)."""
+def _incline(sizes, pin=None, r=INCLINE_R, average_s=INCLINE_AVERAGE_S):
+    """(cfgs, run) of a near-yield incline case at the cells / t_end (/ frames) of ``sizes``, tau_b / tau_y = ``r``,
+    the plug averaged over the last ``average_s``; ``pin``: numerics the case sets itself (a --set of the same key
+    wins)."""
 
     def cfgs(size, base):
-        cfg_base = {**(pin or {}), **base}
-        return [incline_config(sizes[size]["cells"], INCLINE_R, sizes[size]["t_end"], cfg_base)]
+        frames = sizes[size].get("frames")
+        cfg_base = {**(pin or {}), **({"time.n_frames": frames} if frames else {}), **base}
+        return [incline_config(sizes[size]["cells"], r, sizes[size]["t_end"], cfg_base)]
 
     def run(size, base, rec):
         (cfg,) = cfgs(size, base)
@@ -472,8 +483,8 @@ def _incline(sizes, pin=None):
         s, final, _, times = _run_frames(cfg, rec, each=plug)
         if _failed(rec, final, s.scene.n_particles):
             return
-        exact = incline_plug_speed(INCLINE_R)
-        u = float(np.mean([v for v, t in zip(speeds, times) if t >= t_end - INCLINE_AVERAGE_S - 1e-9]))
+        exact = incline_plug_speed(r)
+        u = float(np.mean([v for v, t in zip(speeds, times) if t >= t_end - average_s - 1e-9]))
         off = [abs(v / exact - 1.0) > INCLINE_SETTLED for v in speeds]
         settled = None if off[-1] else (times[max(i for i, o in enumerate(off) if o) + 1] if any(off) else times[0])
         rec.update(reference=exact, measured=u, unit="m/s", plug_speeds_m_s=speeds, frame_times_s=list(times))
@@ -828,6 +839,18 @@ CASES: dict[str, Case] = {
             "at the bed (numerics.wall_yield = wall) -1.7 % measured explicit (docs/wall-yield.md)",
             *_incline(INCLINE_BED_SIZE, INCLINE_BED_PIN),
             "loop CPU measured on 2 shared cores (explicit / incompressible), 4 s, 2026-12-06: 0.3 s / 0.6 s (11 590 / 8 950 steps)",
+        ),
+        Case(
+            "bingham-incline-long",
+            "the layer of bingham-incline at tau_y = tau_b / 1.2 (the sheared layer 3.3 cells), 20 cells, 16 s: "
+            "a bed shear strain of about 65, the plug averaged over the last 2 s",
+            "the film's plug speed rho g sin(theta) delta^2 / (2 mu), delta = H (1 - tau_y / tau_b)",
+            0.05,
+            "5 %, as bingham-incline, whose steady film this layer reaches by 2 s (-0.7 % in float32 and float64): "
+            "a stress case for long shear, which must not move the film (docs/incompressible-default.md)",
+            *_incline(INCLINE_LONG_SIZE, r=INCLINE_LONG_R, average_s=INCLINE_LONG_AVERAGE_S),
+            "loop CPU measured on 2 shared cores (explicit / incompressible), 16 s, 2026-12-06: 16.6 s / 10.8 s "
+            "(183 820 / 70 060 steps)",
         ),
         Case(
             "water-ritter",
