@@ -26,7 +26,7 @@ import jax.numpy as jnp
 # 12 % (1.6 cm at its surface).  Measured on that channel: plug speed +0.40 % at G = 4 tau_y, +0.015 % at 40 tau_y.
 # 100 since 2026-12-06 (20 before): a deposit at its yield limit deforms by 2-3 tau_y/G of its size, and validate's
 # block that must not move at all moved +10.4 % at 20 tau_y, +3.4 % at 100, +0.6 % at 400; B = 0.5, L = 3 H0 reads
-# -6.6 / -2.7 % of x_inf at 16 / 32 cells and 60 s with 100 (-1.6 % at 240 s, still creeping) and -1.2 / +1.3 %
+# -6.6 / -2.7 % of x_inf at 16 / 32 cells and 60 s with 100 (-1.6 % at 240 s, still creeping; -3.1 % in float64) and -1.2 / +1.3 %
 # (past x_inf and moving out) with 20
 # (docs/incompressible-default.md, "The held block").  The step follows sqrt(G): 1.5x the CPU of those cases.
 MAXWELL_YIELD_FACTOR = 100.0
