@@ -5,6 +5,7 @@ The full suite's figures are a command (``mpmjax validate --size full``), not a 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -49,6 +50,31 @@ def test_ci_run_writes_json_and_plot_and_reuses_finished_cases(tmp_path, capsys)
     again = json.loads((out / "validate.json").read_text())
     assert all(again["cases"][n].get("reused") for n in CHEAP)
     assert again["cases"]["poiseuille"]["error"] == doc["cases"]["poiseuille"]["error"]
+
+
+def test_a_case_whose_definition_changed_is_run_again(tmp_path, monkeypatch, capsys):
+    """A record is reused only while the case's configs, reference, tolerance and description are those it was run
+    with: the incline cases' duration changed under an existing validate.json on 2026-12-06, and a rerun without
+    --fresh would have reported the old 1-s figures under the new 4-s description."""
+    out = tmp_path / "v"
+    assert main(["validate", "--size", "ci", "--case", *CHEAP, "--out", str(out)]) == 0
+    first = json.loads((out / "validate.json").read_text())
+    assert all(len(first["cases"][n]["definition"]) == 16 for n in CHEAP)
+    changed = dataclasses.replace(validate.CASES["coussot-shear-box"], tolerance=0.03)
+    monkeypatch.setitem(validate.CASES, "coussot-shear-box", changed)
+    assert main(["validate", "--size", "ci", "--case", *CHEAP, "--out", str(out)]) == 0
+    again = json.loads((out / "validate.json").read_text())
+    assert again["cases"]["poiseuille"].get("reused") is True
+    assert not again["cases"]["coussot-shear-box"].get("reused")
+    assert again["cases"]["coussot-shear-box"]["tolerance"] == 0.03
+    assert "its definition changed" in capsys.readouterr().out
+    # a record kept but not asked for is marked stale when its case has changed since
+    assert main(["validate", "--size", "ci", "--case", "poiseuille", "--out", str(out)]) == 0
+    kept = json.loads((out / "validate.json").read_text())["cases"]["coussot-shear-box"]
+    assert kept.get("reused") and not kept.get("stale")
+    monkeypatch.setitem(validate.CASES, "coussot-shear-box", dataclasses.replace(changed, tolerance=0.02))
+    assert main(["validate", "--size", "ci", "--case", "poiseuille", "--out", str(out)]) == 0
+    assert json.loads((out / "validate.json").read_text())["cases"]["coussot-shear-box"]["stale"] is True
 
 
 @pytest.mark.parametrize(

@@ -109,7 +109,12 @@ def add_validate_arguments(p) -> None:
         help="numerics override for every case, e.g. numerics.pressure=incompressible (repeatable)",
     )
     p.add_argument("--out", default="validate", help="output folder: OUT/validate.json and OUT/validate.png")
-    p.add_argument("--fresh", action="store_true", help="rerun every case (default: reuse finished cases in the JSON)")
+    p.add_argument(
+        "--fresh",
+        action="store_true",
+        help="rerun every case (default: reuse finished cases in the JSON whose scene, reference and tolerance are "
+        "unchanged)",
+    )
 
 
 def cmd_validate(args) -> int:

@@ -11,8 +11,8 @@ Sizes: ``full`` is the measurement (the resolutions below); ``ci`` runs every ca
 (``pass`` is null).
 
 Output: ``OUT/validate.json``, rewritten atomically after every case (an interrupt keeps the
-finished cases and a rerun reuses them unless ``--fresh``, or unless the size or the overrides
-changed), and ``OUT/validate.png``: each case's error against its tolerance, and error against
+finished cases and a rerun reuses them unless ``--fresh``, or unless the size, the overrides or the
+case's ``definition`` changed), and ``OUT/validate.png``: each case's error against its tolerance, and error against
 CPU seconds.  Times are the time loop's (compile excluded): ``time.process_time`` (all threads)
 and wall clock; a case of several runs sums them.
 
@@ -25,6 +25,7 @@ error/tolerance ratio as its error; all checks are in ``checks``.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import time
@@ -1032,6 +1033,20 @@ def plot(doc: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def definition(name: str, size: str, base: dict) -> str:
+    """A fingerprint of what case ``name`` runs and claims at ``size`` with the overrides ``base``: its validated
+    configs, reference, tolerance and description.  A finished record is reused only while it matches, so a case
+    whose scene, duration or claim changed is run again (the run's own code is not in it: after such a change,
+    ``--fresh``)."""
+    case = CASES[name]
+    try:
+        cfgs = case.cfgs(size, base)
+    except SceneError as e:  # a rejected --set: the record says so, and stays valid while the refusal does
+        cfgs = f"rejected: {e}"
+    text = json.dumps(_jsonable([cfgs, case.description, case.reference, case.tolerance]), sort_keys=True, default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
 def run_validate(
     cases=None,
     *,
@@ -1044,7 +1059,8 @@ def run_validate(
     """Run the suite's ``cases`` (default all) with the overrides ``base`` ({"numerics.KEY": value})
     applied to every case; write ``OUT/validate.json`` after every case and ``OUT/validate.png``
     at the end.  Finished cases of an earlier run with the same size and overrides are reused
-    (and kept when not asked for again) unless ``fresh``.  Returns the JSON document."""
+    (and kept when not asked for again) unless ``fresh`` or their ``definition`` changed.  Returns the JSON
+    document."""
     if log is None:
 
         def log(msg):
@@ -1075,17 +1091,24 @@ def run_validate(
         "cases": {},
     }
     # finished cases that this invocation does not repeat (a narrower --case) stay in the JSON
+    # (marked stale when the case's definition has changed since)
     for name, r in old.items():
         if name not in cases and name in CASES and r.get("status") in ("ok", "failed", "rejected"):
             doc["cases"][name] = dict(r, reused=True)
+            if r.get("definition") != definition(name, size, base):
+                doc["cases"][name]["stale"] = True
     for i, name in enumerate(cases):
         case = CASES[name]
         prev = old.get(name)
-        if prev is not None and prev.get("status") in ("ok", "failed", "rejected"):
+        fp = definition(name, size, base)
+        if prev is not None and prev.get("status") in ("ok", "failed", "rejected") and prev.get("definition") == fp:
             rec = dict(prev, reused=True)
         else:
+            if prev is not None and prev.get("status") in ("ok", "failed", "rejected"):
+                log(f"  {name}: its definition changed since the record in {jpath} (or the record has none): run again")
             rec = {
                 "status": "ok",
+                "definition": fp,
                 "description": case.description,
                 "reference_source": case.reference,
                 "tolerance": case.tolerance,
