@@ -25,7 +25,7 @@ import numpy as np
 
 from mpmjax import build
 from mpmjax._simulate import make_advance
-from mpmjax.studies.validate import incline_config, incline_plug_speed, incline_top
+from mpmjax.studies.validate import incline_config, incline_plug_speed, incline_top, settle_time
 
 r, cells, t_end, n_frames = float(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4])
 over, jitter = {}, 0.0
@@ -55,11 +55,9 @@ for _ in range(n_frames):
     times.append(round(float(st.t), 6))
     errs.append(float(np.asarray(st.v)[top, 0].mean()) / exact - 1.0)
 cpu = time.process_time() - c0
-off = [abs(e) > 0.01 for e in errs]
-settled = None if off[-1] else (times[max(i for i, o in enumerate(off) if o) + 1] if any(off) else times[0])
 print(json.dumps({
     "date": time.strftime("%Y-%m-%d"), "r": r, "cells": cells, "t_end_s": t_end, "overrides": over, "jitter_h": jitter,
     "dtype": s.scene.dtype, "dt_s": s.scene.dt, "steps": int(s.scene.n_steps), "cpu_s": round(cpu, 1),
     "exact_m_s": exact, "frame_times_s": times, "error_pct": [round(100 * e, 3) for e in errs],
-    "within_1pct_from_s": settled,
+    "within_1pct_from_s": settle_time(times, errs),
 }))
