@@ -520,6 +520,7 @@ def build(cfg: dict) -> Setup:
         force=cfg["numerics.force"],
         pressure=cfg["numerics.pressure"],
         void_closure=cfg["numerics.void_closure"],
+        stress_quadrature=cfg["numerics.stress_quadrature"],
         maxwell_rotation=cfg["numerics.maxwell_rotation"],
         wall_yield=cfg["numerics.wall_yield"],
         formulation=cfg["model.formulation"],

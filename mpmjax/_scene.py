@@ -182,6 +182,9 @@ class Scene:
       void_closure: with ``incompressible``, ``off``, ``position`` (voids closed by moving the
         particles) or ``velocity`` (the deep cells' packing error corrected both ways in the pressure
         solve itself); ``_pressure``, step 4.
+      stress_quadrature: ``particles`` (the internal force summed at the particles) or ``corrected`` (the
+        stress's smooth part integrated exactly on the grid cells, the particles' sum only the remainder;
+        ``_quadrature``), resolved from ``numerics.stress_quadrature``'s ``auto`` by the build.
       wall_yield: ``cell`` or ``wall`` (where the row of particles on a no-slip box face tests its
         yield stress; ``_wall_yield``).
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
@@ -222,6 +225,7 @@ class Scene:
     force: str = "gradient"
     pressure: str = "explicit"
     void_closure: str = "off"
+    stress_quadrature: str = "particles"
     maxwell_rotation: str = "lag"
     formulation: str = "full"
     wall_yield: str = "wall"

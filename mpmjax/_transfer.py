@@ -62,6 +62,7 @@ import numpy as np
 from . import _shapes
 from ._constitutive import tait_pressure
 from ._fusion import GRID_SUMS, boundary, derivative_boundary, on_cpu, saved
+from ._quadrature import make_correction
 from ._scene import Params, Scene, State, box_wall_nodes
 from ._shard import Replicated
 
@@ -300,6 +301,8 @@ def make_p2g(scene: Scene, axis: str | None = None, flat=None):
         inv_d = 1.0 / (_shapes.APIC_D_FACTOR[scene.shape] * scene.h**2)
 
     whole = Replicated(scene.n_nodes, axis)
+    # numerics.stress_quadrature = "corrected": the stress's smooth part integrated on the grid (_quadrature)
+    correct = make_correction(scene) if scene.stress_quadrature == "corrected" and not mls else None
 
     def p2g(state: State, params: Params, grid=None):
         grid = whole if grid is None else grid
@@ -315,6 +318,14 @@ def make_p2g(scene: Scene, axis: str | None = None, flat=None):
         else:  # the pressure is solved on the grid (_pressure)
             sigma = state.tau
         mw = mass_p[:, None] * st.w  # (n, S)
+        f_smooth = None
+        if correct is not None:
+
+            def sums(vals):
+                out = st.scatter(vals, grid.n_nodes) if flat is None else flat(st.idx, vals, grid.n_nodes)
+                return derivative_boundary(grid.reduce(out))
+
+            sigma, f_smooth = correct(sigma, mw, st, state.x, mat.rho, sums)
         if apic:
             vel = state.v[:, None, :] + _bmv(state.C, st.r)
         else:
@@ -333,6 +344,8 @@ def make_p2g(scene: Scene, axis: str | None = None, flat=None):
         g = st.scatter(chans, grid.n_nodes) if flat is None else flat(st.idx, chans, grid.n_nodes)
         # in reverse mode the grid sums are kept, not recomputed (_fusion.saved, _simulate.make_chunk)
         g = saved(derivative_boundary(grid.reduce(g)), GRID_SUMS)
+        if f_smooth is not None:
+            return g[:, 0], g[:, 1 : 1 + dim], g[:, 1 + dim :] + f_smooth, st
         return g[:, 0], g[:, 1 : 1 + dim], (None if mls else g[:, 1 + dim :]), st
 
     return p2g

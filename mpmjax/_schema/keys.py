@@ -7,7 +7,7 @@ import dataclasses
 import math
 from typing import Any
 
-from .. import _constitutive, _shapes
+from .. import _constitutive, _quadrature, _shapes
 from .._scene import FACE_KINDS
 
 
@@ -228,6 +228,21 @@ _HEAD: dict[str, Key] = {
         "the yield-stress slumps then stop short at 16 cells over their height (-12 % against -3.4 % with off, "
         "which dilation partly flattered; -6 % at 32 cells).",
         choices=("off", "position", "velocity"),
+    ),
+    "numerics.stress_quadrature": Key(
+        str,
+        "particles",
+        "-",
+        "How the internal force integrates the stress. particles: at the particles, -sum V sigma grad w (MPM's "
+        "own). Once shear has disordered the particles, a stress that is uniform along the flow gives a spurious "
+        "force there, and a layer sheared steadily over its bed leaves its steady flow after a bed shear strain of "
+        "about 25-35 with the grid pressure (50-70 with the particles' pressure). corrected (experimental): the "
+        "stress's smooth part (the particles' stress averaged on the nodes) integrated exactly over the deep "
+        "material cells, the particles' sum only the remainder: a film on an incline then holds its exact speed "
+        "past a bed strain of 50, but the lab dam break costs 1.6x the loop CPU and runs 5 % shorter "
+        "(docs/incompressible-default.md, Long shear). Needs numerics.pressure = incompressible, the gimp or "
+        "linear shape and the gradient force.",
+        choices=_quadrature.MODES,
     ),
     "numerics.wall_yield": Key(
         str,

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import _bodies, _dem, _release, _rheology, _shapes, _wall_yield
+from .. import _bodies, _dem, _quadrature, _release, _rheology, _shapes, _wall_yield
 from .._boundary import inflow_layout
 from .._scene import WALL_KINDS
 from .keys import _REQ, BODY_KEYS, BODY_TYPES, Key, SceneError
@@ -412,6 +412,20 @@ def _check_pressure(out: dict):
     """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
     and the slab decomposition (whose halos the grid solve does not exchange) are refused.  The
     depth-averaged step uses neither pressure; ``_validate_formulation`` checks its keys."""
+    if out["numerics.stress_quadrature"] == "corrected":
+        needs = (
+            ("model.formulation", ("full",)),
+            ("numerics.pressure", ("incompressible",)),
+            ("numerics.shape", _quadrature.SHAPES),
+            ("numerics.force", ("gradient",)),
+        )
+        for key, allowed in needs:
+            if out[key] not in allowed:
+                raise SceneError(
+                    f"{key} = {_show(out[key])} is invalid with numerics.stress_quadrature = 'corrected' (the "
+                    "stress's smooth part is integrated against the grid's hat functions, with the grid pressure); "
+                    f"allowed: {', '.join(repr(a) for a in allowed)}, or numerics.stress_quadrature = 'particles'"
+                )
     if out["model.formulation"] == "depth-averaged":
         return
     if out["numerics.pressure"] == "explicit":
