@@ -32,6 +32,9 @@ threshold inside the material (0.9: the region's edge then runs through a deposi
 toggling in and out) the lab dam break blew up.  Voids inside the region count as material: a deep cell
 packed at 0.86 carries the smooth stress of a full cell.
 
+Either pressure: with the particles' (Tait) pressure the smooth part includes it, and a film that the
+particles' quadrature lets drift to -13.6 % by 24 s holds -0.25 % throughout.
+
 Hat functions: GIMP and the linear kernel only (their particle sums integrate against the hats); the
 B-splines would need the integral against the splines (``numerics.stress_quadrature`` refuses them).
 The cost is a second scatter (mass and the stress's d(d+1)/2 components) and one gather of tau_h.

@@ -6,7 +6,7 @@
   material is zero (the exact integral of a constant's divergence), where the particles' sum is not.
 * A Newtonian film on an incline, disordered at the start, holds its exact (Nusselt) speed through a bed
   shear strain of 25; the particles' quadrature leaves it (+31 % there, benchmarks/accuracy/film_time.jsonl).
-* ``corrected`` is refused by name where it does not apply (the explicit pressure, B-splines, MLS).
+* ``corrected`` is refused by name where it does not apply (B-splines, MLS).
 """
 
 import math
@@ -106,7 +106,6 @@ def test_disordered_film_holds_the_exact_speed_under_long_shear():
 def test_corrected_is_refused_where_it_does_not_apply():
     assert m.build(m.load_scene("dambreak-lab", ["domain.cell_size_m=0.04"])).scene.stress_quadrature == "particles"
     for bad, key in (
-        ("numerics.pressure=explicit", "numerics.pressure"),
         ("numerics.shape=quadratic", "numerics.shape"),
         ("numerics.force=mls", "numerics.force"),
     ):

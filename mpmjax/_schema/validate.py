@@ -415,15 +415,16 @@ def _check_pressure(out: dict):
     if out["numerics.stress_quadrature"] == "corrected":
         needs = (
             ("model.formulation", ("full",)),
-            ("numerics.pressure", ("incompressible",)),
             ("numerics.shape", _quadrature.SHAPES),
             ("numerics.force", ("gradient",)),
         )
+        if out["numerics.devices"] > 1:
+            needs += (("numerics.decomposition", ("replicated",)),)
         for key, allowed in needs:
             if out[key] not in allowed:
                 raise SceneError(
                     f"{key} = {_show(out[key])} is invalid with numerics.stress_quadrature = 'corrected' (the "
-                    "stress's smooth part is integrated against the grid's hat functions, with the grid pressure); "
+                    "stress's smooth part is integrated against the grid's hat functions, on the whole grid); "
                     f"allowed: {', '.join(repr(a) for a in allowed)}, or numerics.stress_quadrature = 'particles'"
                 )
     if out["model.formulation"] == "depth-averaged":
