@@ -184,7 +184,7 @@ class Scene:
         solve itself); ``_pressure``, step 4.
       stress_quadrature: ``particles`` (the internal force summed at the particles) or ``corrected`` (the
         stress's smooth part integrated exactly on the grid cells, the particles' sum only the remainder;
-        ``_quadrature``), resolved from ``numerics.stress_quadrature``'s ``auto`` by the build.
+        ``_quadrature``; experimental).
       wall_yield: ``cell`` or ``wall`` (where the row of particles on a no-slip box face tests its
         yield stress; ``_wall_yield``).
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
