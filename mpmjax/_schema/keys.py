@@ -241,7 +241,7 @@ _HEAD: dict[str, Key] = {
         "material cells, the particles' sum only the remainder: a film on an incline then holds its exact speed "
         "past a bed strain of 50, but the lab dam break costs 1.6x the loop CPU and runs 5 % shorter "
         "(docs/incompressible-default.md, Long shear); with the particles' pressure a film holds -0.25 % to a bed "
-        "strain of 98 (-13.6 % without). Needs the gimp or linear shape, the gradient force and, over several "
+        "strain of 98 (-13.6 % without) but the inertial slump stops 7.4 % short (1.8 % without). Needs the gimp or linear shape, the gradient force and, over several "
         "devices, the replicated decomposition.",
         choices=_quadrature.MODES,
     ),
