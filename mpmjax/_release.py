@@ -31,17 +31,26 @@ from . import _bodies
 GEOMETRIC_SUBDIVISION = 8  # sub-columns per axis and particle column of the reference volume
 
 
+def _finite(a) -> bool:
+    """math.isfinite that is False, not OverflowError, for an int too large for a float (TOML and JSON
+    integers are unbounded: the fuzz test found one)."""
+    try:
+        return math.isfinite(a)
+    except OverflowError:
+        return False
+
+
 def region_error(val, dim: int) -> str | None:
     """None if ``val`` is a valid ``release.region_map_m`` for a ``dim``-D scene, else why not."""
     nums = isinstance(val, list) and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in val)
     if dim == 2:
         if not (nums and len(val) == 2):
             return "expected [xmin, xmax] (map m) in a 2D scene"
-        return None if math.isfinite(val[0]) and math.isfinite(val[1]) and val[0] < val[1] else "need xmin < xmax"
+        return None if _finite(val[0]) and _finite(val[1]) and val[0] < val[1] else "need finite xmin < xmax"
     if nums:
         if len(val) != 4:
             return "expected a box [xmin, ymin, xmax, ymax] or a polygon [[x, y], ...] (map m)"
-        ok = all(math.isfinite(a) for a in val) and val[0] < val[2] and val[1] < val[3]
+        ok = all(_finite(a) for a in val) and val[0] < val[2] and val[1] < val[3]
         return None if ok else "a box needs finite xmin < xmax and ymin < ymax"
     pairs = isinstance(val, list) and all(
         isinstance(p, list) and len(p) == 2 and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in p)
@@ -49,7 +58,7 @@ def region_error(val, dim: int) -> str | None:
     )
     if not pairs or len(val) < 3:
         return "expected a box [xmin, ymin, xmax, ymax] or a polygon of at least 3 vertices [[x, y], ...] (map m)"
-    if not all(math.isfinite(a) for p in val for a in p):
+    if not all(_finite(a) for p in val for a in p):
         return "vertices must be finite"
     return None
 

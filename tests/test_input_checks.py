@@ -344,3 +344,13 @@ def test_stress_exits_3_when_a_case_fails(tmp_path, capsys):
     readme = (ROOT / "README.md").read_text()
     perf = (ROOT / "docs" / "performance.md").read_text()
     assert "exits 3" in readme and "exits 3" in perf and "1 when one fails" not in perf
+
+
+def test_a_release_region_with_an_integer_too_large_for_a_float_is_refused_by_name():
+    # TOML integers are unbounded; math.isfinite raised OverflowError on one (found by test_fuzz_garbage_scenes)
+    from mpmjax._release import region_error
+
+    assert "finite" in region_error([0, 0, 0, 10**400], 3)
+    assert "finite" in region_error([0, 10**400], 2)
+    assert "finite" in region_error([[0, 0], [1, 0], [10**400, 1]], 3)
+    assert region_error([0.0, 0.0, 1.0, 1.0], 3) is None
