@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._boundary import node_fill
-from ._pressure import FLUID_FRACTION, cell_valid, deep_cells
+from ._pressure import FLUID_FRACTION, _np_corner_sum, cell_valid, deep_cells
 from ._scene import Scene
 
 MODES = ("particles", "corrected")
@@ -93,7 +93,7 @@ def make_correction(scene: Scene):
         index[(a, b)] = index[(b, a)] = k
     K = _coefficients(dim, h)
     fill = np.maximum(node_fill(scene).reshape(shape), 0.0)
-    fill_c = sum(_np_at(fill, c) for c in corners)
+    fill_c = _np_corner_sum(fill, corners)  # the packing's denominator, as the grid pressure's
     # the cells that may hold material: inside the box, in front of the planes, above the terrain
     valid = cell_valid(scene)
     origin = np.asarray(scene.grid_origin)
@@ -144,9 +144,3 @@ def make_correction(scene: Scene):
 
     return correct
 
-
-def _np_at(t: np.ndarray, o) -> np.ndarray:
-    for a in range(t.ndim):
-        if o[a]:
-            t = np.roll(t, -int(o[a]), axis=a)
-    return t
