@@ -165,6 +165,13 @@ def test_the_map_of_a_ritter_dam_break_reads_the_exact_depth(tmp_path):
     np.testing.assert_allclose(pv["thickness_m"][-1], depth, rtol=1e-6, atol=1e-9)  # stored as float32
     assert "depth-averaged step" in pv["attrs"]["thickness"]
     assert summary["plan_view"]["final_max_thickness_m"] == pytest.approx(float(depth.max()), abs=1e-6)  # 6 decimals
+    # a saved run's runout series (mpmjax.plotting.runout, rebuilt from the saved scene) is summary.json's: the
+    # step's depth, not the columns binned by position (2540.3 against 2538.0 m on field-breach-da before 2026-12-06)
+    from mpmjax._metrics import RunoutGauge
+    from mpmjax.plotting import runout
+
+    want = RunoutGauge.of(s.scene, s.info).front(fin.x, fin.vol0, fin.active)
+    assert runout(res)[1][-1] == pytest.approx(want, abs=1e-9)
 
 
 def test_mass_exact_and_depth_never_negative(ritter):

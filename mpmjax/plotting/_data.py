@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -199,11 +200,29 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
     raise ValueError(f"method = {method!r}; allowed: 'surface', 'kernel'")
 
 
+def _plan_scene(res):
+    """The built scene of a depth-averaged run, rebuilt from its saved configuration (the DEM's heights
+    travel in it), so that its runout reads the step's own depth on the cells as summary.json's does;
+    None for a full-model run.  A float64 run is rebuilt in float32 where float64 is off in this
+    process (rebuilding must not switch it on; the front moves by float32 rounding only)."""
+    cfg = _cfg(res)
+    if cfg.get("model.formulation") != "depth-averaged":
+        return None
+    from .._build import build  # the builder only for depth-averaged results
+
+    cfg = dict(cfg)
+    if cfg.get("output.runout_origin_m") is None:  # saved as null where it was NaN (derived by build)
+        cfg["output.runout_origin_m"] = math.nan
+    if cfg.get("numerics.dtype") == "float64" and not jax.config.jax_enable_x64:
+        cfg["numerics.dtype"] = "float32"
+    return build(cfg).scene
+
+
 def _gauge(res) -> _metrics.RunoutGauge:
     g = _geometry(res)
     return _metrics.RunoutGauge(
         dim=g["dim"], axis=g["axis"], origin=g["origin"], cell=g["h"], spacing=g["spacing"], lo=tuple(g["lo"]),
-        hi=tuple(g["hi"]),
+        hi=tuple(g["hi"]), plan=_plan_scene(res),
     )
 
 
