@@ -152,11 +152,13 @@ def _batch_frame(states, mats, params, *, sc):
 
 
 @partial(jax.jit, static_argnames=("sc", "axis", "origin", "spacing"))
-def _batch_observe(states, mats, vol0, *, sc, axis, origin, spacing):
+def _batch_observe(states, mats, *, sc, axis, origin, spacing):
     """Per lane, of one frame: front [m], farthest particle [m] (both from the runout origin; at
-    the origin while no material is active) and kinetic energy [J]."""
+    the origin while no material is active) and kinetic energy [J], with the lane's own volumes
+    (they change where the depth-averaged step splits columns)."""
 
     def one(st, mat):
+        vol0 = st.vol0
         some = jnp.any(st.active)
         far = jnp.where(some, mpmjax.runout(st.x, st.active, axis, origin, spacing), 0.0)
         if _on_profile(sc, axis):
@@ -170,12 +172,12 @@ def _batch_observe(states, mats, vol0, *, sc, axis, origin, spacing):
 
 
 @partial(jax.jit, static_argnames=("sc",))
-def _batch_final(states, vol0, x_prof, *, sc):
+def _batch_final(states, x_prof, *, sc):
     """Per lane, of the final state: particles lost and the height profile on ``x_prof`` (2D)."""
 
     def one(st):
         if sc.dim == 2:
-            prof = mpmjax.height_profile(st.x, vol0, st.active, x_prof, bandwidth=sc.h)
+            prof = mpmjax.height_profile(st.x, st.vol0, st.active, x_prof, bandwidth=sc.h)
         else:
             prof = jnp.zeros_like(x_prof)
         return st.n_lost, prof
@@ -193,7 +195,7 @@ def _run_batch(mats, shared, how, layout, pacer):
     params, state0, x_prof = shared
     sc = how["sc"]
     states = _batch_start(mats, params, state0, sc=sc)
-    obs = [_batch_observe(states, mats, state0.vol0, **how)]
+    obs = [_batch_observe(states, mats, **how)]
     for _ in range(sc.n_frames):
         if mpmjax.chunkable(sc):
             states = mpmjax.run_chunked(
@@ -206,8 +208,8 @@ def _run_batch(mats, shared, how, layout, pacer):
         else:
             states = jax.block_until_ready(_batch_frame(states, mats, params, sc=sc))
             mpmjax.check_interrupted()
-        obs.append(_batch_observe(states, mats, state0.vol0, **how))
-    lost, prof = _batch_final(states, state0.vol0, x_prof, sc=sc)
+        obs.append(_batch_observe(states, mats, **how))
+    lost, prof = _batch_final(states, x_prof, sc=sc)
     obs, lost, prof = layout.gather((obs, lost, prof))
     fronts, far, ke = (np.stack([o[i] for o in obs], axis=1) for i in range(3))
     return fronts, far, ke, lost, prof

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _bodies, _constitutive, _dem, _release, _rheology, _shallow, _shapes
+from . import _bodies, _constitutive, _dem, _release, _rheology, _shallow, _shapes, _split
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Basal, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -359,6 +359,8 @@ def memory_estimate(cfg: dict) -> dict:
         floor = float(cfg["domain.lo_m"][-1])
         height = ter.height if ter is not None else (lambda xy: np.full(len(xy), floor))
         n += _release.wet_columns(cfg, height) if shallow else _release.geometric_volume(cfg, height) / dx**dim
+    if shallow and cfg["numerics.split_levels"] > 0:  # the spare slots of column splitting (_split)
+        n *= 1.0 + float(cfg["numerics.split_pool"])
     nodes = float(np.prod(np.asarray(_grid_shape(cfg), float)[:k]))
     n_internal = len(_rheology.MODELS[cfg["material.model"]].internals)
     state_per_particle = (2 * dim + 2 * dim * dim + 3 + n_internal) * item + 2  # x v C tau J vol0 mu internal; bools
@@ -431,9 +433,17 @@ def build(cfg: dict) -> Setup:
         v_pool = np.broadcast_to(u * d, park.shape)
         v = np.concatenate([v, v_pool])
     shallow = cfg["model.formulation"] == "depth-averaged"
+    split_min = 0.0
     if shallow:  # columns on the plan (_shallow): one particle per seeded column
         x, vol0, v = _shallow.columns(x, vol0, v)
         n_bodies = len(x)
+        if cfg["numerics.split_levels"] > 0 and n_bodies:  # spare slots for split columns (_split): inactive, volume 0
+            k = dim - 1
+            split_min = _split.min_volume(vol0, k, int(cfg["numerics.split_levels"]))
+            n_pool = int(math.ceil(float(cfg["numerics.split_pool"]) * n_bodies))
+            x = np.concatenate([x, np.repeat(x[:1], n_pool, axis=0)])
+            vol0 = np.concatenate([vol0, np.zeros(n_pool)])
+            v = np.concatenate([v, np.zeros((n_pool, v.shape[1]))])
     if cfg["numerics.force"] == "mls" and (
         cfg["numerics.transfer"] != "apic" or cfg["numerics.shape"] not in ("quadratic", "cubic")
     ):
@@ -525,6 +535,8 @@ def build(cfg: dict) -> Setup:
         wall_yield=cfg["numerics.wall_yield"],
         formulation=cfg["model.formulation"],
         bed_curvature=cfg["model.bed_curvature"],
+        split_levels=int(cfg["numerics.split_levels"]) if shallow else 0,
+        split_min_volume=float(split_min),
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,
         shear_measure=cfg["material.shear_measure"],
@@ -562,6 +574,8 @@ def build(cfg: dict) -> Setup:
         runout_origin_m=origin_r,
         particle_spacing_m=h / cfg["numerics.ppc"],
     )
+    if scene.split_levels > 0:
+        info["split_pool"] = int(len(x) - n_bodies)
     if buried:
         info["bodies_below_terrain"] = buried
     if release is not None:

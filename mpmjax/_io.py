@@ -12,7 +12,9 @@ HDF5 schema of ``result.h5`` (see docs/output.md):
   ``/particles/mass_kg`` (n,) [kg; 2D: kg per m depth].
 * ``/frames/t_s`` (F,), ``/frames/x_m`` (F, n, dim), ``/frames/v_m_s`` (F, n, dim),
   ``/frames/J`` (F, n), ``/frames/mu_pa_s`` (F, n), ``/frames/active`` (F, n) and one
-  dataset per rheology internal field (``/frames/lambda`` for Coussot).  Frame 0 is the
+  dataset per rheology internal field (``/frames/lambda`` for Coussot); with column splitting
+  (``numerics.split_levels`` > 0) also ``/frames/vol0_m3`` (F, n), the volumes that change as
+  columns split (``frame_volumes`` reads either).  Frame 0 is the
   initial state.  Datasets grow by one frame at a time and the file is flushed after
   each frame, so an interrupted run keeps every frame written so far.  ``/frames/t_s`` is
   written last in a frame: its length is the number of complete frames, and
@@ -147,6 +149,8 @@ class FrameWriter:
         self.g = self.f.create_group("frames")
         n, dim = s.scene.n_particles, s.scene.dim
         self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
+        if getattr(s.scene, "split_levels", 0) > 0:  # columns split: their volumes change (_split)
+            self.fields["vol0_m3"] = (n,)
         self.internal = {k: lab for k, (lab, _) in internal_datasets(s.scene.rheology).items()}
         for k in st.internal:
             self.fields[self.internal[k]] = (n,)
@@ -172,6 +176,8 @@ class FrameWriter:
         self.g = self.f["frames"]
         n, dim = setup.scene.n_particles, setup.scene.dim
         self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
+        if getattr(setup.scene, "split_levels", 0) > 0:  # columns split: their volumes change (_split)
+            self.fields["vol0_m3"] = (n,)
         self.internal = {k: lab for k, (lab, _) in internal_datasets(setup.scene.rheology).items()}
         for k in setup.state.internal:
             self.fields[self.internal[k]] = (n,)
@@ -190,7 +196,8 @@ class FrameWriter:
         self.f.flush()
 
     def append(self, state):
-        vals = {"x_m": state.x, "v_m_s": state.v, "J": state.J, "mu_pa_s": state.mu, "active": state.active}
+        vals = {"x_m": state.x, "v_m_s": state.v, "J": state.J, "mu_pa_s": state.mu, "active": state.active,
+                "vol0_m3": state.vol0}
         for k, arr in state.internal.items():
             vals[self.internal[k]] = arr
         for name in self.fields:
@@ -219,6 +226,16 @@ class FrameWriter:
     def __exit__(self, exc_type, exc, tb):
         self.close(complete=exc_type is None)
         return False
+
+
+def frame_volumes(res: dict) -> np.ndarray:
+    """The particles' rest volumes of every saved frame of a ``read_result`` dict, (F, n) [m^3; 2D:
+    m^2 per metre]: ``/frames/vol0_m3`` where columns split, else the constant ``/particles/vol0_m3``."""
+    fr = res["frames"]
+    if "vol0_m3" in fr:
+        return np.asarray(fr["vol0_m3"], float)
+    vol = np.asarray(res["particles"]["vol0_m3"], float)
+    return np.broadcast_to(vol, (len(fr["t_s"]),) + vol.shape)
 
 
 def _read_open(f) -> dict:

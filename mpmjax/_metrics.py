@@ -67,6 +67,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._io import frame_volumes
 from ._observables import FRONT_FRACTION, free_surface_front, front_stations, height_profile, runout
 from ._shallow import cell_depth_map
 
@@ -502,10 +503,10 @@ def plan_view_summary(result, path=None, plan=None) -> dict:
     elif cfg["boundary.y_hi"] == "symmetry":
         sym_y, mirror = float(hi[1]), "high"
     fr = result["frames"]
-    vol = np.asarray(result["particles"]["vol0_m3"], float)  # rest volumes: J drifts (thickness_map)
+    vol = frame_volumes(result)  # rest volumes (J drifts: thickness_map), per frame where columns split
     maps = plan_view_series(fr["x_m"], fr["v_m_s"], fr["mu_pa_s"], fr["active"], vol, xe, ye, min_count=PLAN_MIN_COUNT)
     if plan is not None:
-        depth = [cell_depth_map(plan, x, vol, a) for x, a in zip(fr["x_m"], fr["active"])]
+        depth = [cell_depth_map(plan, x, v, a) for x, v, a in zip(fr["x_m"], vol, fr["active"])]
         if depth and depth[0].shape != maps["thickness_m"][0].shape:
             raise ValueError(f"plan_view_summary: the plan's cells {depth[0].shape} are not the bins "
                              f"{maps['thickness_m'][0].shape}")

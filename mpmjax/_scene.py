@@ -191,6 +191,9 @@ class Scene:
         ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
       bed_curvature: depth-averaged only: ``centrifugal`` (the bed's curvature u.K.u in the columns'
         bed-normal gravity) or ``none`` (``_shallow``, step 2).
+      split_levels, split_min_volume: depth-averaged only: columns sparser than the grid are split
+        (``_split``) down to ``split_min_volume`` (a column's volume: m^3 in 3D, m^2 per metre in 2D);
+        0 levels: off.
     """
 
     dim: int
@@ -230,6 +233,8 @@ class Scene:
     formulation: str = "full"
     wall_yield: str = "wall"
     bed_curvature: str = "centrifugal"
+    split_levels: int = 0
+    split_min_volume: float = 0.0
 
     @property
     def n_nodes(self) -> int:

@@ -48,6 +48,9 @@ ghost layers and box faces as in the full step).  One step:
    maps and hazard maps read a depth-averaged state as they read a 3-D one; J stays 1 and the
    deviatoric stress 0.
 
+8. with ``numerics.split_levels`` > 0, columns sparser than the grid (H_p h^k < V_p: neighbours more
+   than a cell away) are split into 2^k columns (``_split``), so that the grid resolves a thin tip.
+
 Not here (docs/depth-averaged.md, "Missing"): the
 earth-pressure coefficient of granular Savage-Hutter flows (the pressure is hydrostatic, K = 1),
 extra planes, periodic faces, pipe inflow, the aging gate and device sharding.
@@ -63,7 +66,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _basal, _shapes
+from . import _basal, _shapes, _split
 from ._scene import Params, Scene, State, box_wall_nodes, next_time
 
 # nodal mass below this fraction of a full cell's mass (float32 only) counts as empty (as _step)
@@ -221,6 +224,13 @@ def make_shallow_step(scene: Scene):
     d_factor = _APIC_D.get(scene.shape)
     m_empty = EMPTY_NODE_FRACTION * h**k if np.dtype(scene.dtype) == np.float32 else 0.0
     names = law.internal_fields
+    # column splitting (``_split``): the children stay inside the box's walls and the grid's safe region
+    split_lo, split_hi = safe_lo.copy(), safe_hi.copy()
+    for ax, point, nrm, _, _ in walls:
+        if nrm > 0:
+            split_lo[ax] = max(split_lo[ax], point)
+        else:
+            split_hi[ax] = min(split_hi[ax], point)
 
     def step(state: State, params: Params) -> State:
         dtp = state.x.dtype
@@ -339,7 +349,7 @@ def make_shallow_step(scene: Scene):
             a_ = active.reshape(active.shape + (1,) * (new.ndim - 1))
             return jnp.where(a_, new, old)
 
-        return State(
+        new = State(
             x=keep(x3, state.x),
             v=keep(v3, jnp.zeros_like(state.v)),
             C=keep(C3, jnp.zeros_like(state.C)),
@@ -354,6 +364,9 @@ def make_shallow_step(scene: Scene):
             n_lost=state.n_lost + jnp.sum(lost_now).astype(jnp.int32),
             p=state.p,
         )
+        if scene.split_levels > 0:
+            new = _split.split(new, H_p, k=k, h=h, v_min=scene.split_min_volume, lo=split_lo, hi=split_hi)
+        return new
 
     return step
 

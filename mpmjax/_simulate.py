@@ -49,8 +49,9 @@ from ._step import make_step
 
 class Frame(NamedTuple):
     """What is saved per frame: positions [m], velocities [m/s], volume ratio J [-],
-    effective viscosity [Pa s], the rheology's internal fields, the active mask and
-    the time [s]."""
+    effective viscosity [Pa s], the rheology's internal fields, the active mask, the time [s]
+    and the particles' rest volumes [m^3; 2D: m^2] (constant but where the depth-averaged step
+    splits columns: ``_split``)."""
 
     x: jnp.ndarray
     v: jnp.ndarray
@@ -59,10 +60,11 @@ class Frame(NamedTuple):
     internal: dict
     active: jnp.ndarray
     t: jnp.ndarray
+    vol0: jnp.ndarray
 
 
 def frame_of(state: State) -> Frame:
-    return Frame(state.x, state.v, state.J, state.mu, state.internal, state.active, state.t)
+    return Frame(state.x, state.v, state.J, state.mu, state.internal, state.active, state.t, state.vol0)
 
 
 # Reverse mode through ``simulate`` keeps every step's input state and saved values

@@ -11,7 +11,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .. import _metrics
+from .. import _metrics, _split
 from .._io import _jsonable, atomic_write_text
 from .._version import __version__
 
@@ -164,6 +164,17 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
     warning = (_shallow_warning if shallow else _deposit_warning)(summary["deposit_cells_across"], thick, sc.h)
     if warning is not None:
         summary["warnings"] = list(summary.get("warnings", [])) + [warning]
+    if shallow and sc.split_levels > 0:
+        pool = int(info.get("split_pool", 0))
+        left = int(np.sum(np.asarray(_split.spare_slots(state))))
+        summary["split_columns"] = {"spare_slots": pool, "slots_used": pool - left, "levels": sc.split_levels,
+                                    "min_volume": sc.split_min_volume}
+        if left < 2 ** (sc.dim - 1) - 1:  # too few for one more split
+            summary["warnings"] = list(summary.get("warnings", [])) + [
+                f"column splitting used {pool - left} of its {pool} spare slots (numerics.split_pool = "
+                f"{setup.cfg['numerics.split_pool']:g}): later sparse columns were not split, so a thin tip may be "
+                "under-resolved; raise numerics.split_pool (docs/depth-averaged.md, 'Column splitting')"
+            ]
     return summary, warning
 
 

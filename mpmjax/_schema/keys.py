@@ -170,6 +170,29 @@ _HEAD: dict[str, Key] = {
         "H the height span of the material.",
         lo=0.0,
     ),
+    "numerics.split_levels": Key(
+        int,
+        0,
+        "-",
+        "Depth-averaged formulation only: column splitting. A column whose depth on the grid is below its volume "
+        "over the plan cell (its neighbours more than a cell away: a stretching tip) is split into 2^k columns "
+        "(k the plan's axes) of equal volume at its footprint's quarter points, so that the grid resolves the thin "
+        "tip of a flow and of its deposit (an arrested deposit whose tip columns spread apart keeps creeping "
+        "otherwise); at most this many halvings per plan axis below the median seeded column. 0: off. "
+        "docs/depth-averaged.md, Column splitting.",
+        lo=0,
+        hi=12,
+    ),
+    "numerics.split_pool": Key(
+        float,
+        1.0,
+        "-",
+        "With numerics.split_levels > 0: spare column slots for the children, as a multiple of the seeded columns "
+        "(each costs a step like a column; when they run out, splitting stops and the run says so).",
+        lo=0.0,
+        lo_open=True,
+        hi=64.0,
+    ),
     "numerics.dt_s": Key(
         float,
         0.0,

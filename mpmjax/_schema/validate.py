@@ -708,6 +708,12 @@ def _validate_formulation(out: dict, dim: int):
                 "closure of the depth-averaged formulation; allowed: none, noslip, slip, coulomb, or "
                 "model.formulation = 'depth-averaged'"
             )
+        if out["numerics.split_levels"] != 0:
+            raise SceneError(
+                f"numerics.split_levels = {_show(out['numerics.split_levels'])} is invalid with model.formulation = "
+                "'full': column splitting is the depth-averaged formulation's; allowed: 0, or "
+                "model.formulation = 'depth-averaged'"
+            )
         if out["model.bed_curvature"] != "centrifugal":
             raise SceneError(
                 f"model.bed_curvature = {_show(out['model.bed_curvature'])} is invalid with model.formulation = "

@@ -13,7 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _bodies, _metrics
-from .._io import read_result
+from .._build import build
+from .._io import frame_volumes, read_result
 from .._observables import height_profile
 
 
@@ -194,7 +195,7 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
         if not bw > 0:
             raise ValueError(f"bandwidth_m = {bandwidth_m}; allowed: > 0 [m]")
         hp = height_profile(
-            jnp.asarray(x), jnp.asarray(res["particles"]["vol0_m3"]), jnp.asarray(act), jnp.asarray(xs), bandwidth=bw
+            jnp.asarray(x), jnp.asarray(frame_volumes(res)[k]), jnp.asarray(act), jnp.asarray(xs), bandwidth=bw
         )
         return xs, np.asarray(hp, float)
     raise ValueError(f"method = {method!r}; allowed: 'surface', 'kernel'")
@@ -208,8 +209,6 @@ def _plan_scene(res):
     cfg = _cfg(res)
     if cfg.get("model.formulation") != "depth-averaged":
         return None
-    from .._build import build  # the builder only for depth-averaged results
-
     cfg = dict(cfg)
     if cfg.get("output.runout_origin_m") is None:  # saved as null where it was NaN (derived by build)
         cfg["output.runout_origin_m"] = math.nan
@@ -234,9 +233,9 @@ def runout(result, *, farthest: bool = False) -> tuple[np.ndarray, np.ndarray]:
     gauge = _gauge(res)
     fr = res["frames"]
     act = fr["active"].astype(bool)
-    vol0 = np.asarray(res["particles"]["vol0_m3"], np.float32)
+    vols = frame_volumes(res).astype(np.float32)
     if farthest:
         front = [gauge.farthest(x, a) for x, a in zip(fr["x_m"], act)]
     else:
-        front = [gauge.front(x, vol0, a) for x, a in zip(fr["x_m"], act)]
+        front = [gauge.front(x, v, a) for x, v, a in zip(fr["x_m"], vols, act)]
     return np.asarray(fr["t_s"], float), np.asarray(front, float)

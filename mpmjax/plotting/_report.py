@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _metrics
+from .._io import frame_volumes
 from .._observables import height_profile
 from ._data import _frame_index, _geometry, load
 
@@ -69,7 +70,7 @@ def _kernel_profile_wide(res, k: int, x_m: np.ndarray, bandwidth: float, chunk: 
     fr = res["frames"]
     x = np.asarray(fr["x_m"][k], float)
     act = np.asarray(fr["active"][k]).astype(bool)
-    vol = np.asarray(res["particles"]["vol0_m3"], float)
+    vol = frame_volumes(res)[k]
     idx = np.nonzero(act)[0]
     out = np.zeros(len(x_m))
     step = max(1, chunk // max(len(x_m), 1))
@@ -108,11 +109,11 @@ def result_profiles(result, frames=None, runout=None):
     ax_ = g["axis"] if g["axis"] in (0, 1) else 0
     edges = [g["lo"][a] + h * np.arange(int(round((g["hi"][a] - g["lo"][a]) / h)) + 1) for a in (0, 1)]
     xc = 0.5 * (edges[ax_][1:] + edges[ax_][:-1])
-    vol = np.asarray(res["particles"]["vol0_m3"], float)
+    vols = frame_volumes(res)
     out = []
     for k in ks:
         act = np.asarray(res["frames"]["active"][k]).astype(bool)
-        tm = _metrics.thickness_map(np.asarray(res["frames"]["x_m"][k], float), vol, act, edges[0], edges[1])
+        tm = _metrics.thickness_map(np.asarray(res["frames"]["x_m"][k], float), vols[k], act, edges[0], edges[1])
         out.append((k, float(t[k]), tm.max(axis=1 - ax_)))
     return xc, out
 
