@@ -64,7 +64,9 @@ def split(state: State, H_p, *, k: int, h: float, v_min: float, lo, hi) -> State
     par = parent_of[jnp.where(used, f // (m - 1), 0)]
     child = jnp.where(used, f % (m - 1) + 1, 0)  # 1 .. m-1; the parent stays as child 0
 
-    side = (V / Hs) ** (1.0 / k)
+    # (a spare slot's V = 0: its root's derivative at 0 is infinite, so the root takes 1 there, else reverse mode
+    # multiplies that infinity by a zero cotangent into NaN)
+    side = jnp.where(V > 0, jnp.where(V > 0, V / Hs, 1.0) ** (1.0 / k), 0.0)
     d = jnp.minimum(OFFSET_FRACTION * side, OFFSET_MAX_CELLS * h)  # (n,)
     bits = jnp.asarray([[(c >> a) & 1 for a in range(k)] for c in range(m)], dt) * 2.0 - 1.0  # (m, k): -1 / +1
 
