@@ -86,7 +86,10 @@ def _scenario_metrics(setup, state, times, kinetic) -> dict:
         "kinetic_energy_J": kinetic,
         "kinetic_energy_unit": "J per metre of depth" if sc.dim == 2 else "J",
         "time_to_rest_s": fin(_metrics.time_to_rest(times, kinetic, rel_threshold=0.01)),
-        "mobilised_fraction": fin(_metrics.mobilised_fraction(moved_from, x, act, sc.h, vol0=np.asarray(state.vol0))),
+        # weighted by the initial volumes: where columns split (_split) a seeded column's displacement stands for the
+        # children it gave its volume to (their slots' start is a parking place; the slots start with volume 0);
+        # elsewhere the volumes never change
+        "mobilised_fraction": fin(_metrics.mobilised_fraction(moved_from, x, act, sc.h, vol0=np.asarray(setup.state.vol0))),
         "mobilised_distance_m": sc.h,
         "surface_profile_x_m": [float(a) for a in xc],
         "surface_profile_z_m": [fin(a) for a in top],
