@@ -17,6 +17,11 @@ with N twins their binomial standard error is sqrt(c (1 - c) / N) (N = 20: 10 an
 
     mpmjax calibrate-coverage --twins 20 --fit mu0 --out runs/coverage      # the study
     mpmjax calibrate-coverage --size ci --out runs/coverage-ci              # 2 twins, seconds per fit
+    mpmjax calibrate-coverage --size joint --twins 10 --fit mu0,alpha,T,n,lambda0 --out runs/coverage-joint
+
+``--size joint`` fits the joint experiments of ``calibration.synthetic.joint_twin`` (height profiles,
+the front series, releases after rests and rheometer transients; data written by
+``write_joint_twin`` at the truth, N(0, sigma) noise of ``JOINT_SIGMA``) instead of profiles alone.
 
 The results go to ``OUT/coverage.json`` (every twin's truth, fit and stds, and the summary) and
 are printed.  All data are SYNTHETIC.
@@ -35,7 +40,7 @@ import numpy as np
 
 from .data import write_profiles_csv
 from .run import calibrate
-from .synthetic import synthetic_profiles
+from .synthetic import JOINT_SCENE, JOINT_TIMES_S, JOINT_TRUTH, synthetic_profiles, write_joint_twin
 
 __all__ = ["SIZES", "coverage_study", "summarise", "summary_lines"]
 
@@ -65,6 +70,19 @@ SIZES = {
         "refine_max_iter": 4,
         "stations": 46,
         "bandwidth_m": 0.04,
+    },
+    # the joint experiments (profiles, front series, releases after rests, rheometer transients) at the settings
+    # of the single joint twin of docs/calibration-coverage.md ("The two estimators compared")
+    "joint": {
+        "experiments": "joint",
+        "cell_size_m": 0.03,
+        "times_s": JOINT_TIMES_S,
+        "max_iter": 20,
+        "refine_max_iter": 8,
+        "rtol": 1e-4,
+        "patience": 3,
+        "stations": 31,
+        "bandwidth_m": 0.06,
     },
 }
 
@@ -157,6 +175,9 @@ def coverage_study(
     fixed = dict(fixed or {})
     x = np.linspace(0.0, 0.9, sz["stations"])
     h = sz["cell_size_m"]
+    joint = sz.get("experiments") == "joint"
+    if joint:
+        scene = JOINT_SCENE
     rows = []
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="coverage-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -183,27 +204,38 @@ def coverage_study(
         truth = {k: float(math.exp(rng.uniform(math.log(bounds[k][0]), math.log(bounds[k][1])))) for k in names}
         mat = [f"{SCENE_KEYS[k]}={v!r}" for k, v in {**fixed, **truth}.items()]
         t_end = max(sz["times_s"])
-        profs, _ = synthetic_profiles(
-            scene,
-            [f"time.t_end_s={t_end!r}", *mat, f"domain.cell_size_m={h / data_refine!r}"],
-            sz["times_s"],
-            x,
-            sigma_m=sigma_m,
-            seed=seed * 1000 + i,
-            bandwidth_m=sz["bandwidth_m"],
-        )
-        data = work / f"twin{i:03d}.csv"
-        write_profiles_csv(
-            data,
-            profs,
-            f"SYNTHETIC coverage twin {i}: truth {truth}, fixed {fixed}, "
-            f"h = {h / data_refine} m, sigma {sigma_m} m, seed {seed * 1000 + i}",
-        )
+        extra = {}
+        if joint:  # the four joint experiments' files, the other Coussot parameters at JOINT_TRUTH unless fixed
+            paths = write_joint_twin(
+                work / f"twin{i:03d}", {**JOINT_TRUTH, **fixed, **truth}, cell_size_m=h,
+                data_cell_size_m=h / data_refine, seed=seed * 1000 + i, stations=sz["stations"], times_s=sz["times_s"],
+            )
+            data = paths["profiles"]
+            extra = {"runout_series": paths["runout-series"], "rest_times": paths["rest-times"],
+                     "transient": paths["transient"]}
+        else:
+            profs, _ = synthetic_profiles(
+                scene,
+                [f"time.t_end_s={t_end!r}", *mat, f"domain.cell_size_m={h / data_refine!r}"],
+                sz["times_s"],
+                x,
+                sigma_m=sigma_m,
+                seed=seed * 1000 + i,
+                bandwidth_m=sz["bandwidth_m"],
+            )
+            data = work / f"twin{i:03d}.csv"
+            write_profiles_csv(
+                data,
+                profs,
+                f"SYNTHETIC coverage twin {i}: truth {truth}, fixed {fixed}, "
+                f"h = {h / data_refine} m, sigma {sigma_m} m, seed {seed * 1000 + i}",
+            )
         kw = {
             "max_iter": sz["max_iter"],
             "refine_max_iter": sz["refine_max_iter"],
-            "rtol": 1e-3,
-            "patience": 2,
+            "rtol": sz.get("rtol", 1e-3),
+            "patience": sz.get("patience", 2),
+            **extra,
             **calibrate_kwargs,
         }
         w0, c0 = time.perf_counter(), time.process_time()
