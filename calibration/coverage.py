@@ -176,8 +176,9 @@ def coverage_study(
     x = np.linspace(0.0, 0.9, sz["stations"])
     h = sz["cell_size_m"]
     joint = sz.get("experiments") == "joint"
-    if joint:
+    if joint:  # the parameters not fitted stay at the joint twin's truth in the data and in the fit
         scene = JOINT_SCENE
+        fixed = {**{k: v for k, v in JOINT_TRUTH.items() if k not in names}, **fixed}
     rows = []
     work = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="coverage-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -207,7 +208,7 @@ def coverage_study(
         extra = {}
         if joint:  # the four joint experiments' files, the other Coussot parameters at JOINT_TRUTH unless fixed
             paths = write_joint_twin(
-                work / f"twin{i:03d}", {**JOINT_TRUTH, **fixed, **truth}, cell_size_m=h,
+                work / f"twin{i:03d}", {**fixed, **truth}, cell_size_m=h,
                 data_cell_size_m=h / data_refine, seed=seed * 1000 + i, stations=sz["stations"], times_s=sz["times_s"],
             )
             data = paths["profiles"]

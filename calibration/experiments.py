@@ -158,18 +158,20 @@ class _SceneExperiment:
         return st, fr
 
     def _at(self, st, fr, k):
+        """Positions, active mask and volumes of frame ``k`` (0: the initial state); the volumes are the
+        frame's own (they change where the depth-averaged step splits columns)."""
         if k == 0:
-            return st.x, st.active
-        return fr.x[k - 1], fr.active[k - 1]
+            return st.x, st.active, st.vol0
+        return fr.x[k - 1], fr.active[k - 1], fr.vol0[k - 1]
 
     def _front(self, st, fr, k, front_threshold_m=None):
         sc = self.setup.scene
-        xp, act = self._at(st, fr, k)
+        xp, act, vol = self._at(st, fr, k)
         if front_threshold_m is None:
-            return free_surface_front(xp, st.vol0, act, bandwidth=self.bandwidth_m, x_lo=sc.lo[0], x_hi=sc.hi[0])
+            return free_surface_front(xp, vol, act, bandwidth=self.bandwidth_m, x_lo=sc.lo[0], x_hi=sc.hi[0])
         return smooth_front(
             xp,
-            st.vol0,
+            vol,
             act,
             threshold_height=front_threshold_m,
             bandwidth=self.bandwidth_m,
@@ -267,8 +269,8 @@ class ProfileExperiment(_SceneExperiment):
         st, fr = self.run(values)
         out = []
         for k, x in zip(self.frame_index, self._x, strict=True):
-            xp, act = self._at(st, fr, k)
-            out.append(height_profile(xp, st.vol0, act, x, bandwidth=self.bandwidth_m))
+            xp, act, vol = self._at(st, fr, k)
+            out.append(height_profile(xp, vol, act, x, bandwidth=self.bandwidth_m))
         return out
 
     def residuals_from(self, st, fr):
@@ -276,8 +278,8 @@ class ProfileExperiment(_SceneExperiment):
         station, then the runout if one is given."""
         r = []
         for k, x, h, s in zip(self.frame_index, self._x, self._h, self._s, strict=True):
-            xp, act = self._at(st, fr, k)
-            r.append((height_profile(xp, st.vol0, act, x, bandwidth=self.bandwidth_m) - h) / s)
+            xp, act, vol = self._at(st, fr, k)
+            r.append((height_profile(xp, vol, act, x, bandwidth=self.bandwidth_m) - h) / s)
         if self.runout_m is not None:
             front = self._front(st, fr, self.setup.scene.n_frames, self.front_threshold_m)
             r.append(jnp.atleast_1d((front - self.runout_m) / self.runout_sigma_m))

@@ -32,6 +32,8 @@ import math
 
 import numpy as np
 
+from ._io import frame_volumes
+
 SPREAD_FRACTION = 0.1
 RELATION = "s' = 1 - 2 tau' (1 - ln(2 tau')), s' = slump / H, tau' = tau_y / (rho g H) (Pashias et al. 1996)"
 
@@ -153,10 +155,10 @@ def summary(result) -> dict:
     body = cfg["bodies"][0]
     H, R = float(body["height_m"]), float(body["radius_m"])
     fr = result["frames"]
-    vol = np.asarray(result["particles"]["vol0_m3"], float)
-    first = measure(fr["x_m"][0], vol, fr["active"][0], cfg)
-    heights = [measure(fr["x_m"][k], vol, fr["active"][k], cfg)["height_m"] for k in range(len(fr["t_s"]))]
-    last = measure(fr["x_m"][-1], vol, fr["active"][-1], cfg)
+    vol = frame_volumes(result)  # each frame's (a depth-averaged run's columns may split)
+    first = measure(fr["x_m"][0], vol[0], fr["active"][0], cfg)
+    heights = [measure(fr["x_m"][k], vol[k], fr["active"][k], cfg)["height_m"] for k in range(len(fr["t_s"]))]
+    last = measure(fr["x_m"][-1], vol[-1], fr["active"][-1], cfg)
     slump = H - last["height_m"]
     s_prime, tau_prime, back = back_calculate(last["height_m"], cfg)
     given, given_is = input_yield_stress(cfg)

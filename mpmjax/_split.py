@@ -66,18 +66,23 @@ def split(state: State, H_p, *, k: int, h: float, v_min: float, lo, hi) -> State
 
     # (a spare slot's V = 0: its root's derivative at 0 is infinite, so the root takes 1 there, else reverse mode
     # multiplies that infinity by a zero cotangent into NaN)
-    side = jnp.where(V > 0, jnp.where(V > 0, V / Hs, 1.0) ** (1.0 / k), 0.0)
-    d = jnp.minimum(OFFSET_FRACTION * side, OFFSET_MAX_CELLS * h)  # (n,)
-    bits = jnp.asarray([[(c >> a) & 1 for a in range(k)] for c in range(m)], dt) * 2.0 - 1.0  # (m, k): -1 / +1
-
-    def offset(c, who):
-        return bits[c] * d[who][:, None]
-
+    # only active columns with volume: elsewhere (spare slots, columns gone through an open face) the quotient and
+    # the root take 1, since their derivatives there are infinite (float32: 1 / 1e-30^2) and reverse mode would
+    # multiply them by a zero cotangent into NaN
+    ok = state.active & (V > 0)
+    q = jnp.where(ok, V / jnp.where(ok, Hs, 1.0), 1.0)
+    side = jnp.where(ok, q ** (1.0 / k), 0.0)
     lo_a = jnp.asarray(lo, dt)[None, :]
     hi_a = jnp.asarray(hi, dt)[None, :]
     X = state.x[:, :k]
-    X_par = jnp.clip(jnp.where(sparse[:, None], X + offset(jnp.zeros((n,), jnp.int32), jnp.arange(n)), X), lo_a, hi_a)
-    X_child = jnp.clip(X[par] + offset(child, par), lo_a, hi_a)
+    # the offset per axis, no further than the nearer bound allows, so the children stay symmetric about the
+    # parent (the centroid kept) next to a wall too
+    d = jnp.minimum(OFFSET_FRACTION * side, OFFSET_MAX_CELLS * h)[:, None]  # (n, 1)
+    d = jnp.clip(jnp.minimum(d, jnp.minimum(X - lo_a, hi_a - X)), 0.0, None)  # (n, k)
+    bits = jnp.asarray([[(c >> a) & 1 for a in range(k)] for c in range(m)], dt) * 2.0 - 1.0  # (m, k): -1 / +1
+
+    X_par = jnp.where(sparse[:, None], X + bits[0][None, :] * d, X)
+    X_child = X[par] + bits[child] * d[par]
     X_new = jnp.where(used[:, None], X_child, X_par)
 
     def take(a):

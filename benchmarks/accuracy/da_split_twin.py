@@ -7,7 +7,9 @@ Truth: the Bingham dam break of tests/test_depth_averaged.py's twin (tau_y = 20 
 Fit: the same scene at h = 10 mm, COLUMNS a cell, split_levels LEVELS, Levenberg-Marquardt through
 ``calibration.fit`` from tau_y = 40 and 10 Pa.  One JSON line per start.
 
-    .venv/bin/python benchmarks/accuracy/da_split_twin.py T_END COLUMNS LEVELS
+    .venv/bin/python benchmarks/accuracy/da_split_twin.py T_END COLUMNS LEVELS [POOL]
+
+(POOL: numerics.split_pool, default 0.5.)
 """
 
 import json
@@ -30,6 +32,7 @@ from mpmjax._schema import validate  # noqa: E402
 from mpmjax._simulate import simulate  # noqa: E402
 
 t_end, cols, levels = float(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3])
+pool = float(sys.argv[4]) if len(sys.argv) > 4 else 0.5
 
 
 def setup(h, ppc, lev):
@@ -37,7 +40,7 @@ def setup(h, ppc, lev):
         "model": {"formulation": "depth-averaged"},
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [1.2, 0.2], "cell_size_m": h},
         "boundary": {"x_lo": "slip", "x_hi": "open"},
-        "numerics": {"shape": "quadratic", "ppc": ppc, "dtype": "float64", "split_levels": lev, "split_pool": 0.5},
+        "numerics": {"shape": "quadratic", "ppc": ppc, "dtype": "float64", "split_levels": lev, "split_pool": pool},
         "material": {"model": "bingham", "viscosity_pa_s": 0.5, "yield_stress_pa": 20.0, "density_kg_m3": 1000.0,
                      "bulk_modulus_pa": 1e5},
         "time": {"t_end_s": t_end, "n_frames": 1},
@@ -57,7 +60,11 @@ for start in (40.0, 10.0):
     ps = ParameterSet.from_names(["tau_y"], coarse.params.material, init={"tau_y": start})
     t0 = time.process_time()
     r = fit([exp], ps, method="lm", max_iter=15, progress=False)
-    print(json.dumps({"t_end_s": t_end, "columns": cols, "levels": levels, "start_pa": start,
+    fin_c, _ = jax.jit(simulate, static_argnums=(0, 3))(coarse.scene, coarse.state, coarse.params._replace(
+        material=coarse.params.material._replace(tau_y=r.params["tau_y"])))
+    spare = int(np.sum(~np.asarray(fin_c.active) & (np.asarray(fin_c.vol0) == 0)))
+    print(json.dumps({"t_end_s": t_end, "columns": cols, "levels": levels, "pool": pool, "start_pa": start,
+                      "spare_left_at_fit": spare, "vmax_at_fit_m_s": float(jnp.abs(fin_c.v).max()),
                       "truth_runout_m": runout, "truth_vmax_m_s": float(jnp.abs(fin.v).max()),
                       "tau_y_fit_pa": float(r.params["tau_y"]), "rel": float(r.params["tau_y"]) / 20.0 - 1,
                       "loss_ratio": float(r.loss_final / r.loss_initial), "cpu_s": round(time.process_time() - t0, 1),

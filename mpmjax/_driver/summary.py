@@ -175,8 +175,9 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         if left < 2 ** (sc.dim - 1) - 1:  # too few for one more split
             summary["warnings"] = list(summary.get("warnings", [])) + [
                 f"column splitting used {pool - left} of its {pool} spare slots (numerics.split_pool = "
-                f"{setup.cfg['numerics.split_pool']:g}): later sparse columns were not split, so a thin tip may be "
-                "under-resolved; raise numerics.split_pool (docs/depth-averaged.md, 'Column splitting')"
+                f"{setup.cfg['numerics.split_pool']:g}): a column that became sparse after they ran out was not split, so "
+                "a thin tip may be under-resolved; raise numerics.split_pool (docs/depth-averaged.md, 'Column "
+                "splitting')"
             ]
     return summary, warning
 

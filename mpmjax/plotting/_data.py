@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import jax
@@ -16,6 +17,7 @@ from .. import _bodies, _metrics
 from .._build import build
 from .._io import frame_volumes, read_result
 from .._observables import height_profile
+from .._schema import _NAN_DEFAULT, _REQ, SCHEMA, SceneError
 
 
 # name -> (label, unit, log colour scale)
@@ -204,17 +206,30 @@ def profile_at(result, frame: int, *, method: str = "surface", x_m=None, bandwid
 def _plan_scene(res):
     """The built scene of a depth-averaged run, rebuilt from its saved configuration (the DEM's heights
     travel in it), so that its runout reads the step's own depth on the cells as summary.json's does;
-    None for a full-model run.  A float64 run is rebuilt in float32 where float64 is off in this
-    process (rebuilding must not switch it on; the front moves by float32 rounding only)."""
-    cfg = _cfg(res)
-    if cfg.get("model.formulation") != "depth-averaged":
+    None for a full-model run.  Keys added to the schema after the file was written take their
+    defaults; the NaN defaults saved as null are NaN again.  A float64 run is rebuilt in float32 where
+    float64 is off in this process (rebuilding must not switch it on; the front moves by float32
+    rounding only).  Where the saved scene cannot be rebuilt (a mesh body's file moved), None, with a
+    warning: the columns are then binned by position as before 2026-12-06."""
+    saved = _cfg(res)
+    if saved.get("model.formulation") != "depth-averaged":
         return None
-    cfg = dict(cfg)
-    if cfg.get("output.runout_origin_m") is None:  # saved as null where it was NaN (derived by build)
-        cfg["output.runout_origin_m"] = math.nan
+    cfg = {k: spec.default for k, spec in SCHEMA.items() if spec.default is not _REQ}
+    cfg.update(saved)
+    for k in _NAN_DEFAULT:
+        if cfg.get(k) is None:
+            cfg[k] = math.nan
     if cfg.get("numerics.dtype") == "float64" and not jax.config.jax_enable_x64:
         cfg["numerics.dtype"] = "float32"
-    return build(cfg).scene
+    try:
+        return build(cfg).scene
+    except (SceneError, OSError, KeyError, ValueError) as e:
+        warnings.warn(
+            f"the depth-averaged run's scene could not be rebuilt from result.h5 ({e}); its runout is read from "
+            "the columns binned by position, not the step's depth",
+            stacklevel=3,
+        )
+        return None
 
 
 def _gauge(res) -> _metrics.RunoutGauge:
