@@ -162,7 +162,7 @@ class _SceneExperiment:
         frame's own (they change where the depth-averaged step splits columns)."""
         if k == 0:
             return st.x, st.active, st.vol0
-        return fr.x[k - 1], fr.active[k - 1], fr.vol0[k - 1]
+        return fr.x[k - 1], fr.active[k - 1], st.vol0 if fr.vol0 is None else fr.vol0[k - 1]
 
     def _front(self, st, fr, k, front_threshold_m=None):
         sc = self.setup.scene

@@ -50,8 +50,8 @@ from ._step import make_step
 class Frame(NamedTuple):
     """What is saved per frame: positions [m], velocities [m/s], volume ratio J [-],
     effective viscosity [Pa s], the rheology's internal fields, the active mask, the time [s]
-    and the particles' rest volumes [m^3; 2D: m^2] (constant but where the depth-averaged step
-    splits columns: ``_split``)."""
+    and, only where the depth-averaged step splits columns (``_split``), the particles' rest
+    volumes [m^3; 2D: m^2]; None elsewhere, where they are the state's constant ``vol0``."""
 
     x: jnp.ndarray
     v: jnp.ndarray
@@ -60,11 +60,14 @@ class Frame(NamedTuple):
     internal: dict
     active: jnp.ndarray
     t: jnp.ndarray
-    vol0: jnp.ndarray
+    vol0: jnp.ndarray | None = None
 
 
-def frame_of(state: State) -> Frame:
-    return Frame(state.x, state.v, state.J, state.mu, state.internal, state.active, state.t, state.vol0)
+def frame_of(state: State, scene: Scene | None = None) -> Frame:
+    """The frame of ``state``; the volumes only where ``scene`` splits columns (a run pays only for them there)."""
+    split = scene is not None and scene.split_levels > 0
+    return Frame(state.x, state.v, state.J, state.mu, state.internal, state.active, state.t,
+                 state.vol0 if split else None)
 
 
 # Reverse mode through ``simulate`` keeps every step's input state and saved values
@@ -209,7 +212,7 @@ def simulate(scene: Scene, state: State, params: Params, n_frames: int | None = 
 
     def outer(s, _):
         s = chunk(s, params)
-        return s, frame_of(s)
+        return s, frame_of(s, scene)
 
     return jax.lax.scan(outer, state, None, length=nf)
 
