@@ -147,13 +147,7 @@ class FrameWriter:
         p["vol0_m3"] = np.asarray(st.vol0)
         p["mass_kg"] = np.asarray(st.vol0) * float(s.params.material.rho)
         self.g = self.f.create_group("frames")
-        n, dim = s.scene.n_particles, s.scene.dim
-        self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
-        if getattr(s.scene, "split_levels", 0) > 0:  # columns split: their volumes change (_split)
-            self.fields["vol0_m3"] = (n,)
-        self.internal = {k: lab for k, (lab, _) in internal_datasets(s.scene.rheology).items()}
-        for k in st.internal:
-            self.fields[self.internal[k]] = (n,)
+        self._layout(s)
         self.g.create_dataset("t_s", shape=(0,), maxshape=(None,), dtype="f8")
         # float fields in the run's own precision (a float64 run used to be stored as float32, which
         # cut its positions to ~1e-7 relative: 0.1 mm on a 3 km domain)
@@ -171,16 +165,20 @@ class FrameWriter:
             )
         self.n = 0
 
-    def _reopen(self, setup, keep_frames: int):
-        self.f = h5py.File(self.path, "r+")
-        self.g = self.f["frames"]
+    def _layout(self, setup):
+        """The per-frame datasets and their shapes (``self.fields``) and the internal fields' dataset names."""
         n, dim = setup.scene.n_particles, setup.scene.dim
         self.fields = {"x_m": (n, dim), "v_m_s": (n, dim), "J": (n,), "mu_pa_s": (n,), "active": (n,)}
-        if getattr(setup.scene, "split_levels", 0) > 0:  # columns split: their volumes change (_split)
+        if setup.scene.split_levels > 0:  # columns split: their volumes change (_split)
             self.fields["vol0_m3"] = (n,)
         self.internal = {k: lab for k, (lab, _) in internal_datasets(setup.scene.rheology).items()}
         for k in setup.state.internal:
             self.fields[self.internal[k]] = (n,)
+
+    def _reopen(self, setup, keep_frames: int):
+        self.f = h5py.File(self.path, "r+")
+        self.g = self.f["frames"]
+        self._layout(setup)
         have = min(self.g[name].shape[0] for name in ("t_s", *self.fields))
         if have < keep_frames:
             self.f.close()

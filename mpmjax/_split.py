@@ -64,8 +64,6 @@ def split(state: State, H_p, *, k: int, h: float, v_min: float, lo, hi) -> State
     par = parent_of[jnp.where(used, f // (m - 1), 0)]
     child = jnp.where(used, f % (m - 1) + 1, 0)  # 1 .. m-1; the parent stays as child 0
 
-    # (a spare slot's V = 0: its root's derivative at 0 is infinite, so the root takes 1 there, else reverse mode
-    # multiplies that infinity by a zero cotangent into NaN)
     # only active columns with volume: elsewhere (spare slots, columns gone through an open face) the quotient and
     # the root take 1, since their derivatives there are infinite (float32: 1 / 1e-30^2) and reverse mode would
     # multiply them by a zero cotangent into NaN
@@ -110,7 +108,8 @@ def split(state: State, H_p, *, k: int, h: float, v_min: float, lo, hi) -> State
 
 
 def min_volume(vol0: np.ndarray, k: int, levels: int) -> float:
-    """The smallest column a split may leave (a column's volume: m^3 in a 3D scene, m^2 per metre in 2D): the median seeded column over 2^(k levels)."""
+    """The smallest column a split may leave: the median seeded column over 2^(k levels) (a column's volume:
+    m^3 in a 3D scene, m^2 per metre in 2D)."""
     v = np.asarray(vol0, float)
     v = v[v > 0]
     return float(np.median(v)) / 2.0 ** (k * levels) if len(v) else 0.0
