@@ -390,7 +390,24 @@ def _warnings(ml) -> list:
     for lv in ml.levels:
         if lv.estimate is not None and lv.estimate.get("over_budget"):
             warnings.append(lv.estimate["message"])
+    warnings += _not_converged(ml)
     return warnings
+
+
+def _not_converged(ml) -> list:
+    """A warning where the finest level stopped at its iteration cap: its values and std are then not an
+    optimum's (measured: docs/calibration-coverage.md, a finer level capped at 8 iterations in a flat valley)."""
+    if not ml.levels or ml.levels[-1].result.converged:
+        return []
+    r = ml.levels[-1].result
+    hist = [float(v) for v in np.min(np.asarray(r.history), axis=1)]
+    k = min(3, len(hist) - 1)
+    fall = f"; the loss fell from {hist[-1 - k]:.4g} to {hist[-1]:.4g} over the last {k} iteration{'' if k == 1 else 's'}" if k > 0 else ""
+    option = "--refine-max-iter" if len(ml.levels) > 1 else "--max-iter"
+    return [
+        f"the fit stopped at its iteration cap ({r.iterations} iteration{'' if r.iterations == 1 else 's'} at h = {ml.levels[-1].cell_size_m:g} m) before "
+        f"its stopping test held{fall}: the values and their std are not an optimum's; raise {option}"
+    ]
 
 
 def _load_data(data, sigmas, weights, sigma_m, runout_series, rest_times, transient, lambda_rest):

@@ -56,6 +56,16 @@ std = sqrt(std_statistical^2 + std_numerical^2).
   (``refit_std``) and the fitted value stays the refit's.  With three or more levels the
   Richardson estimate (above) is used where it applies, else the fixed-parameter one.
 
+Goodness of fit (:func:`goodness_of_fit`): where an experiment's sigma is known, its residuals at an
+optimum are the noise, so chi^2 = sum(r_e^2) over those experiments follows a chi^2 law with
+nu = sum N_e - p degrees of freedom.  A chi^2 beyond its 1e-3 upper tail (``GOF_P_WARN``) says
+the fit did not reach the data's noise level: stopped before the optimum, in another optimum, or
+with a model (or grid) that cannot represent the data; the statistical std, which assumes that it
+did, is then too small by about sqrt(chi^2 / nu) (the Birge ratio).  It is reported and warned
+about, not applied: the numerical std of a multi-level fit already carries the grid's part.
+Measured on the joint coverage twins (docs/calibration-coverage.md): a finer level stopped at its
+iteration cap ended at 10x the noise floor's loss with alpha 2-4 total std from its truth.
+
 A parameter is *poorly identified* when its statistical relative std exceeds ``rel_std_warn``
 (or is not finite), or when its total relative std does: std / |theta| > 0.5 means the 2 sigma
 interval reaches zero, i.e. it is wider than the value itself.
@@ -93,6 +103,8 @@ __all__ = [
 REL_STD_WARN = 0.5
 # observed convergence orders accepted for Richardson extrapolation
 ORDER_RANGE = (0.5, 6.0)
+# upper-tail probability of chi^2 below which a fit is said not to have reached its data's noise level
+GOF_P_WARN = 1e-3
 
 
 class Uncertainty(NamedTuple):
@@ -118,6 +130,7 @@ class Uncertainty(NamedTuple):
     poorly_identified: tuple = ()
     fisher_parts: tuple = ()
     experiment_names: tuple = ()
+    goodness: dict | None = None
 
     def as_dict(self):
         n = self.names
@@ -130,6 +143,7 @@ class Uncertainty(NamedTuple):
             "condition_number_log": float(self.condition),
             "warnings": list(self.warnings),
             "poorly_identified": list(self.poorly_identified),
+            "goodness_of_fit": self.goodness,
         }
 
 
@@ -166,15 +180,53 @@ def fisher_by_experiment(experiments, pset, theta: dict):
     return tuple(pset.free), thv, parts, scales
 
 
+def goodness_of_fit(labels, residuals, known, p: int) -> dict | None:
+    """chi^2 of the experiments whose sigma is known (module docstring): {"chi2", "dof", "reduced"
+    (chi2 / dof), "p_value" (upper tail), "experiments": {label: {"chi2", "n", "mean_square"}}};
+    None when no experiment's sigma is known (their scale is then estimated from the residuals)."""
+    per = {
+        lb: {"chi2": float(np.sum(r**2)), "n": int(r.size), "mean_square": float(np.mean(r**2)) if r.size else 0.0}
+        for lb, r, k in zip(labels, residuals, known, strict=True)
+        if k
+    }
+    if not per:
+        return None
+    chi2 = sum(e["chi2"] for e in per.values())
+    dof = sum(e["n"] for e in per.values()) - p
+    if dof < 1:
+        return {"chi2": chi2, "dof": dof, "reduced": None, "p_value": None, "experiments": per}
+    tail = float(jax.scipy.special.gammaincc(dof / 2.0, chi2 / 2.0))  # P(chi^2_nu > chi2)
+    return {"chi2": chi2, "dof": dof, "reduced": chi2 / dof, "p_value": tail, "experiments": per}
+
+
+def _goodness_warning(g: dict | None) -> list:
+    if g is None or g["p_value"] is None or g["p_value"] >= GOF_P_WARN:
+        return []
+    each = ", ".join(f"{k} {e['mean_square']:.3g}" for k, e in g["experiments"].items())
+    return [
+        f"the residuals exceed the noise their sigma allows: chi^2 = {g['chi2']:.4g} over {g['dof']} degrees of freedom "
+        f"(chi^2/nu = {g['reduced']:.3g}, upper tail p = {g['p_value']:.2g}; mean squared normalised residual per "
+        f"experiment: {each}, 1 at the noise level): the fit did not reach the data's noise level (stopped before the "
+        "optimum, another optimum, or a model or grid that cannot represent the data), and the statistical std, "
+        f"which assumes it did, is too small by about sqrt(chi^2/nu) = {math.sqrt(g['reduced']):.3g}"
+    ]
+
+
 def gauss_newton(
     experiments, pset, theta: dict, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN
 ) -> Uncertainty:
     """Gauss-Newton uncertainty of the free parameters of ``pset`` at ``theta`` (name ->
     value, e.g. ``FitResult.params``).  See the module docstring."""
-    names, thv, parts, scales = fisher_by_experiment(experiments, pset, theta)
+    names = tuple(pset.free)
+    thv, rs, Js, scales = information_terms(experiments, pset, theta)
+    parts = [J.T @ J / s**2 for J, s in zip(Js, scales, strict=True)]
     unc = from_fisher(names, thv, sum(parts), corr_warn=corr_warn, rel_std_warn=rel_std_warn)
     labels = tuple(getattr(e, "name", f"experiment {i + 1}") for i, e in enumerate(experiments))
-    return unc._replace(noise_scale=scales, fisher_parts=tuple(parts), experiment_names=labels)
+    g = goodness_of_fit(labels, rs, [bool(e.sigma_known) for e in experiments], len(names))
+    return unc._replace(
+        noise_scale=scales, fisher_parts=tuple(parts), experiment_names=labels, goodness=g,
+        warnings=list(unc.warnings) + _goodness_warning(g),
+    )
 
 
 def from_fisher(names, thv, F, *, corr_warn: float = 0.95, rel_std_warn: float = REL_STD_WARN) -> Uncertainty:

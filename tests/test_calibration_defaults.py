@@ -53,6 +53,14 @@ def test_default_is_two_levels_and_the_fine_levels_cost_is_announced_before_it_s
     warn = next(w for w in doc["uncertainty"]["warnings"] if "over the budget" in w)
     assert "level 2/2 (h = 0.03 m) is estimated to take" in warn
     assert err.index("over the budget") < err.index("level 2/2 iteration 1/1")
+    # one iteration does not end the fine level: said, with the option to raise
+    assert not f["converged"] and f["stop_reason"] == "max_iter"
+    stop = next(w for w in doc["uncertainty"]["warnings"] if "iteration cap" in w)
+    assert "(1 iteration at h = 0.03 m)" in stop and "raise --refine-max-iter" in stop
+    # a made-up wedge at sigma 2 mm is no model run: its residuals are far beyond the noise, and that is said
+    gof = doc["uncertainty"]["goodness_of_fit"]
+    assert gof["dof"] == 16 - 1 and gof["reduced"] > 10 and gof["p_value"] < 1e-3
+    assert any("exceed the noise their sigma allows" in w for w in doc["uncertainty"]["warnings"])
     # the estimate bounds the fine level here: at most max_iter + 2 evaluations were counted
     assert f["wall_s"] <= est["wall_s"] * 1.5 + 5.0, (f["wall_s"], est)
 
