@@ -57,7 +57,7 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
 
     def measure():
         c["gauge"] = _metrics.RunoutGauge.of(sc, setup.info)
-        c["summary"], c["deposit_warning"] = complete_summary(
+        c["summary"], c["closing_warnings"] = complete_summary(
             run.base_summary, setup, state, run.acc, advance.schedule, run.compile_s, c["gauge"]
         )
         c["res"] = read_result(out / "result.h5")
@@ -117,7 +117,7 @@ def finish(run: Run, animate: bool, quiet: bool) -> dict:
         sig.restore()
     summary = c["summary"]
     log(f"wrote {', '.join(str(out / f) for f in written)}")
-    _log_closing(log, summary, sc, c["gauge"], c["deposit_warning"])
+    _log_closing(log, summary, sc, c["gauge"], c["closing_warnings"])
     return summary
 
 
@@ -170,8 +170,8 @@ def _outputs_interrupted(run: Run, sig, signum: int, steps: list, now: int) -> I
     return Interrupted(signum, reason + ("" if wrote else "; summary.json could not be written"))
 
 
-def _log_closing(log, summary: dict, sc, gauge, deposit_warning: str | None) -> None:
-    """The closing lines on stderr: 3D channels, the deposit warning, a wall-capped runout, the runout."""
+def _log_closing(log, summary: dict, sc, gauge, closing_warnings: list) -> None:
+    """The closing lines on stderr: 3D channels, the warnings of the run's end, a wall-capped runout, the runout."""
     if sc.dim == 3:
         ch = summary["channels"]
         log(
@@ -187,8 +187,8 @@ def _log_closing(log, summary: dict, sc, gauge, deposit_warning: str | None) -> 
             + (f"{back:.4g} Pa" if back is not None else "n/a")
             + (f", input {st['yield_stress_input_pa']:.4g} Pa" if st["yield_stress_input_pa"] is not None else "")
         )
-    if deposit_warning is not None:
-        log(f"warning: {deposit_warning}")
+    for w in closing_warnings:
+        log(f"warning: {w}")
     if summary["runout_capped_by_wall"]:
         log(
             f"note: the material reached the domain wall at {sc.hi[gauge.axis]:g} m along axis {gauge.axis}: "
