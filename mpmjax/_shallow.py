@@ -500,6 +500,14 @@ def cell_depth_map(scene: Scene, x, vol0, active) -> np.ndarray:
     return np.asarray(_cell_depth(scene, jnp.asarray(x, dt), vol, jnp.asarray(active, bool)), float)
 
 
+def column_depth(scene: Scene, state: State):
+    """Each column's depth H_p [m] as the step computes it from ``state`` (the nodal depth of ``plan_depth`` at the
+    column): for the end-of-run check of column splitting (``mpmjax._driver.summary``)."""
+    H, _ = plan_depth(scene, state)
+    st = _Stencil(scene, state.x[:, : plan_dims(scene)])
+    return jnp.sum(st.w * st.gather(H), axis=1)
+
+
 def plan_depth(scene: Scene, state: State):
     """The flow depth H [m] on the plan nodes as the step sees it (step 1), and the nodes' plan
     positions (n_nodes, k) [m]: for validation and outputs."""

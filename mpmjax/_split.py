@@ -43,6 +43,12 @@ def spare_slots(state: State):
     return ~state.active & (state.vol0 == 0)
 
 
+def sparse_columns(state: State, H_p, *, k: int, h: float, v_min: float):
+    """The active columns a split would split (module docstring): depth on the grid H_p below V_p/h^k, and at least
+    2^k times ``v_min``.  ``H_p``: each column's depth [m] as the step computes it."""
+    return state.active & (jnp.maximum(H_p, 1e-30) * h**k < state.vol0) & (state.vol0 >= 2**k * v_min)
+
+
 def split(state: State, H_p, *, k: int, h: float, v_min: float, lo, hi) -> State:
     """``state`` with its sparse columns split (module docstring).  ``H_p``: each column's depth
     [m] in the step that made ``state``; ``lo`` / ``hi``: (k,) plan bounds the children are kept
@@ -53,7 +59,7 @@ def split(state: State, H_p, *, k: int, h: float, v_min: float, lo, hi) -> State
     V = state.vol0
     Hs = jnp.maximum(H_p, 1e-30)
     free = spare_slots(state)
-    sparse = state.active & (Hs * h**k < V) & (V >= m * v_min)
+    sparse = sparse_columns(state, H_p, k=k, h=h, v_min=v_min)
     rank = jnp.cumsum(sparse) - 1
     sparse = sparse & ((rank + 1) * (m - 1) <= jnp.sum(free))  # as many as the spare slots allow, in order
     rank = jnp.cumsum(sparse) - 1

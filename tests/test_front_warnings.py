@@ -29,6 +29,21 @@ def test_depth_averaged_tip_creep_is_named_and_splitting_holds_it(tmp_path, caps
     assert abs(held["final_front_speed_m_s"]) < 1e-3
     doc = json.loads((tmp_path / "held" / "summary.json").read_text())
     assert doc["final_front_speed_m_s"] == held["final_front_speed_m_s"]
+    # every one of the 60 spare slots used, but no column is left wanting one: no pool warning (there was one
+    # before stop 56, whose advice, a larger pool, changes nothing here)
+    assert held["split_columns"]["slots_used"] == held["split_columns"]["spare_slots"] == 60
+    assert held["split_columns"]["sparse_unsplit_at_end"] == 0 and not [w for w in held["warnings"] if "slots" in w]
+
+
+def test_a_pool_too_small_for_the_columns_that_want_to_split_is_named(tmp_path):
+    """The same run with 3 spare slots (split_pool 0.05): sparse columns are left unsplit at the end, and the
+    warning names how many and the remedy."""
+    s = run_scene("dambreak-lab", tmp_path / "small", DA + ["numerics.split_levels=1", "numerics.split_pool=0.05"],
+                  quiet=True)
+    n = s["split_columns"]["sparse_unsplit_at_end"]
+    assert s["split_columns"]["slots_used"] == 3 and n > 0
+    (w,) = [w for w in s["warnings"] if "slots" in w]
+    assert f"{n} column(s) sparse at the end were left unsplit" in w and "raise numerics.split_pool" in w
 
 
 def test_a_run_ended_while_its_front_still_moves_says_so(tmp_path, capsys):

@@ -11,7 +11,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from .. import _metrics, _split
+from .. import _metrics, _shallow, _split
 from .._io import _jsonable, atomic_write_text
 from .._version import __version__
 
@@ -175,10 +175,17 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         left = int(np.sum(np.asarray(_split.spare_slots(state))))
         summary["split_columns"] = {"spare_slots": pool, "slots_used": pool - left, "levels": sc.split_levels,
                                     "min_volume": sc.split_min_volume}
-        if left < 2 ** (sc.dim - 1) - 1:  # too few for one more split
+        k = sc.dim - 1
+        # too few slots for one more split, and columns the split would split now: they were left unsplit
+        wanted = 0
+        if left < 2**k - 1:
+            H_p = _shallow.column_depth(sc, state)
+            wanted = int(np.sum(np.asarray(_split.sparse_columns(state, H_p, k=k, h=sc.h, v_min=sc.split_min_volume))))
+        summary["split_columns"]["sparse_unsplit_at_end"] = wanted
+        if wanted:
             closing.append(
                 f"column splitting used {pool - left} of its {pool} spare slots (numerics.split_pool = "
-                f"{setup.cfg['numerics.split_pool']:g}): a column that became sparse after they ran out was not split, so "
+                f"{setup.cfg['numerics.split_pool']:g}) and {wanted} column(s) sparse at the end were left unsplit, so "
                 "a thin tip may be under-resolved; raise numerics.split_pool (docs/depth-averaged.md, 'Column "
                 "splitting')"
             )
