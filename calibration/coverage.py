@@ -77,8 +77,8 @@ SIZES = {
         "bandwidth_m": 0.04,
     },
     # the joint experiments (profiles, front series, releases after rests, rheometer transients), stopped as
-    # calibrate stops by default: stop 55 capped the finer level at 8 iterations, and every alpha miss was a
-    # finer level stopped there in a flat valley at 10x the noise floor's loss (docs/calibration-coverage.md)
+    # calibrate stops by default: stop 55 capped the finer level at 8 iterations, and two of its three alpha misses
+    # were finer levels stopped there in a flat valley, covered once uncapped (docs/calibration-coverage.md)
     "joint": {
         "experiments": "joint",
         "cell_size_m": 0.03,
@@ -132,7 +132,7 @@ def _document(
             "init": init,
             "size": size,
             **{k: (list(v) if isinstance(v, tuple) else v) for k, v in sz.items()},
-            "calibrate_defaults": [k for k in STOP_OPTIONS if k not in sz],
+            "calibrate_defaults": [k for k in STOP_OPTIONS if k not in sz and k not in calibrate_kwargs],
             "data_cell_size_m": h / data_refine,
             "sigma_m": sigma_m,
             "seed": seed,

@@ -79,6 +79,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.stats
 
 import mpmjax
 
@@ -182,21 +183,27 @@ def fisher_by_experiment(experiments, pset, theta: dict):
 
 def goodness_of_fit(labels, residuals, known, p: int) -> dict | None:
     """chi^2 of the experiments whose sigma is known (module docstring): {"chi2", "dof", "reduced"
-    (chi2 / dof), "p_value" (upper tail), "experiments": {label: {"chi2", "n", "mean_square"}}};
+    (chi2 / dof), "p_value" (upper tail, float64 on the host whatever the model's precision),
+    "experiments": {label: {"chi2", "n", "mean_square"}}} (a label used twice gets " (2)", ...);
     None when no experiment's sigma is known (their scale is then estimated from the residuals)."""
-    per = {
-        lb: {"chi2": float(np.sum(r**2)), "n": int(r.size), "mean_square": float(np.mean(r**2)) if r.size else 0.0}
-        for lb, r, k in zip(labels, residuals, known, strict=True)
-        if k
-    }
+    per = {}
+    for lb, r, k in zip(labels, residuals, known, strict=True):
+        if not k:
+            continue
+        name, i = lb, 1
+        while name in per:
+            i += 1
+            name = f"{lb} ({i})"
+        r = np.asarray(r, float)
+        per[name] = {"chi2": float(np.sum(r**2)), "n": int(r.size), "mean_square": float(np.mean(r**2)) if r.size else 0.0}
     if not per:
         return None
     chi2 = sum(e["chi2"] for e in per.values())
     dof = sum(e["n"] for e in per.values()) - p
     if dof < 1:
         return {"chi2": chi2, "dof": dof, "reduced": None, "p_value": None, "experiments": per}
-    tail = float(jax.scipy.special.gammaincc(dof / 2.0, chi2 / 2.0))  # P(chi^2_nu > chi2)
-    return {"chi2": chi2, "dof": dof, "reduced": chi2 / dof, "p_value": tail, "experiments": per}
+    return {"chi2": chi2, "dof": dof, "reduced": chi2 / dof, "p_value": float(scipy.stats.chi2.sf(chi2, dof)),
+            "experiments": per}
 
 
 def _goodness_warning(g: dict | None) -> list:

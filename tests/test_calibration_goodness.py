@@ -42,3 +42,11 @@ def test_only_experiments_with_a_known_sigma_count():
     assert goodness_of_fit(["profiles"], [big], [False], 2) is None
     g = goodness_of_fit(["profiles", "rheometer"], [big, np.zeros(20)], [False, True], 2)
     assert list(g["experiments"]) == ["rheometer"] and g["chi2"] == 0.0 and g["dof"] == 18
+
+
+def test_two_experiments_with_one_name_both_count():
+    """Labels are file names, which may repeat (a/lab1.csv, b/lab1.csv): both experiments count in chi^2 and nu,
+    the second listed as "lab1.csv (2)"."""
+    g = goodness_of_fit(["lab1.csv", "lab1.csv"], [np.ones(10), 2 * np.ones(10)], [True, True], 1)
+    assert g["chi2"] == pytest.approx(10 + 40) and g["dof"] == 19
+    assert g["experiments"]["lab1.csv (2)"]["mean_square"] == pytest.approx(4.0)

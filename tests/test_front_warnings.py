@@ -4,9 +4,12 @@ come to rest, which column splitting holds (docs/depth-averaged.md, 'Creep after
 
 import json
 
+import math
+
 import pytest
 
 from mpmjax import run_scene
+from mpmjax._driver.summary import _front_at_the_end
 
 DA = ["model.formulation=depth-averaged", "time.n_frames=60"]
 
@@ -55,3 +58,15 @@ def test_a_run_ended_while_its_front_still_moves_says_so(tmp_path, capsys):
     assert w.startswith("the runout front was still advancing at the end of the run") and "raise time.t_end_s" in w
     assert s["final_front_speed_m_s"] > 0.5
     assert f"warning: {w}" in err
+
+
+def test_the_front_check_needs_two_frames_in_the_last_quarter_and_a_front_off_the_wall():
+    """One frame (times 0 and t_end): nothing is measured, rather than the whole run's mean speed; two frames in the
+    last quarter: 1 m in 1 s, warned; the same front within a cell of the wall: measured, not warned; a NaN front
+    earlier in the run does not matter; a front moving by exactly one bin (h) is not 'more than a cell'."""
+    assert _front_at_the_end([0.0, 30.0], [0.2, 1.5], 0.01, 2.0) == (None, None)
+    speed, w = _front_at_the_end([0.0, 1.0, 2.0, 3.0, 4.0], [math.nan, 0.5, 0.8, 1.0, 2.0 - 0.5], 0.01, 2.0)
+    assert speed == pytest.approx(0.5) and w.startswith("the runout front was still advancing")
+    speed, w = _front_at_the_end([0.0, 1.0, 2.0, 3.0, 4.0], [0.2, 0.5, 0.8, 1.0, 1.995], 0.01, 2.0)
+    assert speed == pytest.approx(0.995) and w is None
+    assert _front_at_the_end([0.0, 1.0, 2.0, 3.0, 4.0], [0.2, 0.5, 0.8, 1.0, 1.01], 0.01, 2.0)[1] is None

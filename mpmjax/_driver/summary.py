@@ -166,7 +166,7 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         jax_backend=jax.default_backend(),
     )
     closing = [(_shallow_warning if shallow else _deposit_warning)(summary["deposit_cells_across"], thick, sc.h)]
-    speed, advancing = _front_at_the_end(times, fronts, sc.h, summary["runout_capped_by_wall"])
+    speed, advancing = _front_at_the_end(times, fronts, sc.h, summary["runout_wall_m"])
     summary["final_front_speed_m_s"] = speed
     creep = _tip_creep(times, fronts, sc.h, summary["time_to_rest_s"]) if shallow and sc.split_levels == 0 else None
     closing.append(creep or advancing)
@@ -198,20 +198,22 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
 FRONT_END_FRACTION = 0.25
 
 
-def _front_at_the_end(times, fronts, h: float, capped: bool) -> tuple[float | None, str | None]:
+def _front_at_the_end(times, fronts, h: float, wall: float) -> tuple[float | None, str | None]:
     """The headline front's mean speed [m/s] over the last ``FRONT_END_FRACTION`` of the run (None with fewer than
-    two frames there), and a warning where it advanced by more than one cell h there and is not held by the
-    wall: final_runout_m is then a snapshot of a moving front, not a deposit's runout."""
+    two frames there), and a warning where it advanced by more than one cell h there (a 1 % margin: a front moves by
+    whole bins) and is not within a cell of the wall ``wall`` [m], measured like the runout: final_runout_m is then a
+    snapshot of a moving front, not a deposit's runout."""
     t, f = np.asarray(times, float), np.asarray(fronts, float)
-    if t.size < 2 or not np.all(np.isfinite(f)):
+    if t.size < 2:
         return None, None
     k = int(np.searchsorted(t, t[-1] - FRONT_END_FRACTION * (t[-1] - t[0])))
-    k = min(k, t.size - 2)
+    if k > t.size - 2 or not (np.isfinite(f[k]) and np.isfinite(f[-1])):
+        return None, None
     dt, dx = float(t[-1] - t[k]), float(f[-1] - f[k])
     if dt <= 0:
         return None, None
     speed = dx / dt
-    if dx <= h or capped:
+    if dx <= 1.01 * h or f[-1] >= wall - h:
         return speed, None
     return speed, (
         f"the runout front was still advancing at the end of the run: {dx:.3g} m over the last {dt:.3g} s "
@@ -228,7 +230,7 @@ def _tip_creep(times, fronts, h: float, time_to_rest) -> str | None:
         return None
     t, f = np.asarray(times, float), np.asarray(fronts, float)
     k = int(np.searchsorted(t, time_to_rest))
-    if k >= t.size - 1 or not np.isfinite(f[k]) or not np.isfinite(f[-1]) or f[-1] - f[k] <= h:
+    if k >= t.size - 1 or not np.isfinite(f[k]) or not np.isfinite(f[-1]) or f[-1] - f[k] <= 1.01 * h:
         return None
     dx, dt = float(f[-1] - f[k]), float(t[-1] - t[k])
     return (
