@@ -177,8 +177,12 @@ def fisher_by_experiment(experiments, pset, theta: dict):
     """Each experiment's Fisher information at ``theta``: (names, theta vector, [F_e], [s_e]) with
     F_e = J_e^T J_e / s_e^2 (module docstring), from one forward-mode Jacobian of all residuals."""
     thv, _, Js, scales = information_terms(experiments, pset, theta)
-    parts = [J.T @ J / s**2 for J, s in zip(Js, scales, strict=True)]
-    return tuple(pset.free), thv, parts, scales
+    return tuple(pset.free), thv, _fisher_parts(Js, scales), scales
+
+
+def _fisher_parts(Js, scales) -> list:
+    """F_e = J_e^T J_e / s_e^2 per experiment."""
+    return [J.T @ J / s**2 for J, s in zip(Js, scales, strict=True)]
 
 
 def goodness_of_fit(labels, residuals, known, p: int) -> dict | None:
@@ -226,7 +230,7 @@ def gauss_newton(
     value, e.g. ``FitResult.params``).  See the module docstring."""
     names = tuple(pset.free)
     thv, rs, Js, scales = information_terms(experiments, pset, theta)
-    parts = [J.T @ J / s**2 for J, s in zip(Js, scales, strict=True)]
+    parts = _fisher_parts(Js, scales)
     unc = from_fisher(names, thv, sum(parts), corr_warn=corr_warn, rel_std_warn=rel_std_warn)
     labels = tuple(getattr(e, "name", f"experiment {i + 1}") for i, e in enumerate(experiments))
     g = goodness_of_fit(labels, rs, [bool(e.sigma_known) for e in experiments], len(names))

@@ -196,28 +196,36 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
 
 # the part of the run, at its end, over which the front's speed is measured
 FRONT_END_FRACTION = 0.25
+# "more than one cell": a front moves by whole bins of h, so one bin with rounding is not more
+MORE_THAN_A_CELL = 1.01
+
+
+def _advance_since(times, fronts, t_from: float):
+    """(dx [m], dt [s]) of the headline front from the first saved time at or after ``t_from`` to the end; None with
+    fewer than two frames there or a non-finite front at either end."""
+    t, f = np.asarray(times, float), np.asarray(fronts, float)
+    k = int(np.searchsorted(t, t_from))
+    if k > t.size - 2 or not (np.isfinite(f[k]) and np.isfinite(f[-1])) or t[-1] <= t[k]:
+        return None
+    return float(f[-1] - f[k]), float(t[-1] - t[k])
 
 
 def _front_at_the_end(times, fronts, h: float, wall: float) -> tuple[float | None, str | None]:
     """The headline front's mean speed [m/s] over the last ``FRONT_END_FRACTION`` of the run (None with fewer than
-    two frames there), and a warning where it advanced by more than one cell h there (a 1 % margin: a front moves by
-    whole bins) and is not within a cell of the wall ``wall`` [m], measured like the runout: final_runout_m is then a
-    snapshot of a moving front, not a deposit's runout."""
-    t, f = np.asarray(times, float), np.asarray(fronts, float)
-    if t.size < 2:
+    two frames there), and a warning where it advanced by more than one cell h there and is not within a cell of the
+    wall ``wall`` [m], measured like the runout: final_runout_m is then a snapshot of a moving front, not a deposit's
+    runout."""
+    if len(times) < 2:
         return None, None
-    k = int(np.searchsorted(t, t[-1] - FRONT_END_FRACTION * (t[-1] - t[0])))
-    if k > t.size - 2 or not (np.isfinite(f[k]) and np.isfinite(f[-1])):
+    adv = _advance_since(times, fronts, times[-1] - FRONT_END_FRACTION * (times[-1] - times[0]))
+    if adv is None:
         return None, None
-    dt, dx = float(t[-1] - t[k]), float(f[-1] - f[k])
-    if dt <= 0:
-        return None, None
-    speed = dx / dt
-    if dx <= 1.01 * h or f[-1] >= wall - h:
-        return speed, None
-    return speed, (
+    dx, dt = adv
+    if dx <= MORE_THAN_A_CELL * h or fronts[-1] >= wall - h:
+        return dx / dt, None
+    return dx / dt, (
         f"the runout front was still advancing at the end of the run: {dx:.3g} m over the last {dt:.3g} s "
-        f"({speed:.2g} m/s, final_front_speed_m_s; more than one cell, domain.cell_size_m = {h:g} m), so "
+        f"({dx / dt:.2g} m/s, final_front_speed_m_s; more than one cell, domain.cell_size_m = {h:g} m), so "
         "final_runout_m is a moving front's, not a deposit's: raise time.t_end_s"
     )
 
@@ -226,13 +234,10 @@ def _tip_creep(times, fronts, h: float, time_to_rest) -> str | None:
     """A depth-averaged run without column splitting whose front advanced by more than one cell after its kinetic
     energy fell below 1 % of its peak (time_to_rest_s): the creep of a tip whose columns have spread more than a cell
     apart (docs/depth-averaged.md, 'Creep after arrest'), which splitting holds."""
-    if time_to_rest is None:
+    adv = None if time_to_rest is None else _advance_since(times, fronts, time_to_rest)
+    if adv is None or adv[0] <= MORE_THAN_A_CELL * h:
         return None
-    t, f = np.asarray(times, float), np.asarray(fronts, float)
-    k = int(np.searchsorted(t, time_to_rest))
-    if k >= t.size - 1 or not np.isfinite(f[k]) or not np.isfinite(f[-1]) or f[-1] - f[k] <= 1.01 * h:
-        return None
-    dx, dt = float(f[-1] - f[k]), float(t[-1] - t[k])
+    dx, dt = adv
     return (
         f"the runout front advanced {dx:.3g} m in the {dt:.3g} s after the kinetic energy fell below 1 % of its peak "
         f"(time_to_rest_s = {time_to_rest:.3g} s; {dx / dt:.2g} m/s, more than one cell, domain.cell_size_m = {h:g} m): "
