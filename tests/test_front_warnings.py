@@ -16,17 +16,18 @@ DA = ["model.formulation=depth-averaged", "time.n_frames=60"]
 
 def test_depth_averaged_tip_creep_is_named_and_splitting_holds_it(tmp_path, capsys):
     """``dambreak-lab`` in the depth-averaged model, 15 s: its kinetic energy is below 1 % of its peak from 2 s, but
-    without splitting its tip creeps on at about 0.16 m/s into the wall at 2 m (measured 2026-12-06); with
-    ``split_levels = 1`` it rests at 1.206 m from 3.5 s (the same at split_pool 4, so the pool is not what holds it).
-    Asserted: the creep warning, the capped runout and more than 0.5 m of advance after rest; with splitting no
-    front warning, the runout within one cell (1 cm) of 1.206 m and the front's end speed below 1 mm/s."""
-    s = run_scene("dambreak-lab", tmp_path / "creep", DA, quiet=True)
+    without splitting (``split_levels = 0``) its tip creeps on at about 0.16 m/s into the wall at 2 m (measured
+    2026-12-06); with the default ``split_levels = 1`` it rests at 1.206 m from 3.5 s (the same at split_pool 4, so
+    the pool is not what holds it).  Asserted: the creep warning, the capped runout and more than 0.5 m of advance
+    after rest; with splitting no front warning, the runout within one cell (1 cm) of 1.206 m and the front's end
+    speed below 1 mm/s."""
+    s = run_scene("dambreak-lab", tmp_path / "creep", DA + ["numerics.split_levels=0"], quiet=True)
     (w,) = [w for w in s["warnings"] if "front" in w]
-    assert "creep of a tip" in w and "numerics.split_levels = 1 holds it" in w
+    assert "creep of a tip" in w and "numerics.split_levels = 1, the default this run turned off, holds it" in w
     assert s["runout_capped_by_wall"] and s["final_runout_m"] > 1.9 and s["time_to_rest_s"] <= 2.5
     k = s["times_s"].index(s["time_to_rest_s"])
     assert s["runout_m"][-1] - s["runout_m"][k] > 0.5
-    held = run_scene("dambreak-lab", tmp_path / "held", DA + ["numerics.split_levels=1"], quiet=True)
+    held = run_scene("dambreak-lab", tmp_path / "held", DA, quiet=True)
     assert not [w for w in held["warnings"] if "front" in w]
     assert held["final_runout_m"] == pytest.approx(1.206, abs=0.01)
     assert abs(held["final_front_speed_m_s"]) < 1e-3

@@ -43,8 +43,11 @@ def test_case_stays_finite_keeps_its_mass_and_loses_nothing(results, name):
     r = results[name]
     assert not r["nan"]
     assert r["n_lost"] == 0
-    assert r["n_active_final"] == r["n_active_initial"] == r["n_particles"]
-    assert r["mass_final_kg"] == r["mass_initial_kg"] > 0  # mass rho V0 is fixed per particle: exact
+    if name.startswith("da-"):  # column splitting (the depth-averaged default) may add columns in its spare slots
+        assert r["n_particles"] >= r["n_active_final"] >= r["n_active_initial"] > 0
+    else:
+        assert r["n_active_final"] == r["n_active_initial"] == r["n_particles"]
+    assert r["mass_final_kg"] == r["mass_initial_kg"] > 0  # rho V0 fixed per particle, or halved by a split: exact
     assert 0 < r["J_min"] <= 1 <= r["J_max"] and math.isfinite(r["J_max"])
 
 

@@ -172,14 +172,15 @@ _HEAD: dict[str, Key] = {
     ),
     "numerics.split_levels": Key(
         int,
-        0,
+        1,
         "-",
         "Depth-averaged formulation only: column splitting. A column whose depth on the grid is below its volume "
         "over the plan cell (its neighbours more than a cell away: a stretching tip) is split into 2^k columns "
         "(k the plan's axes) of equal volume at its footprint's quarter points, so that the grid resolves the thin "
         "tip of a flow and of its deposit (an arrested deposit whose tip columns spread apart keeps creeping "
-        "otherwise); at most this many halvings per plan axis below the median seeded column. 0: off. "
-        "docs/depth-averaged.md, Column splitting.",
+        "otherwise, and its sensitivities are wrong); at most this many halvings per plan axis below the median "
+        "seeded column. 0: off. The default 1 since 2026-12-06 (0 before); the full model ignores the default and "
+        "refuses any other value but 0. docs/depth-averaged.md, Column splitting.",
         lo=0,
         hi=12,
     ),

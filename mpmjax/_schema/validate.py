@@ -698,9 +698,10 @@ _DA_FIXED = {
 }
 
 
-def _validate_formulation(out: dict, dim: int):
+def _validate_formulation(out: dict, dim: int, given: dict):
     """model.formulation = "depth-averaged" (``_shallow``): refuse what that step does not do, and in the full
-    model what only that step does (Voellmy's drag, the bed's curvature term)."""
+    model what only that step does (Voellmy's drag, the bed's curvature term, column splitting: its default
+    falls back to 0 there, a value the scene sets itself is refused).  ``given``: the keys the scene set."""
     if out["model.formulation"] != "depth-averaged":
         if out["terrain.type"] == "voellmy":
             raise SceneError(
@@ -709,11 +710,13 @@ def _validate_formulation(out: dict, dim: int):
                 "model.formulation = 'depth-averaged'"
             )
         if out["numerics.split_levels"] != 0:
-            raise SceneError(
-                f"numerics.split_levels = {_show(out['numerics.split_levels'])} is invalid with model.formulation = "
-                "'full': column splitting is the depth-averaged formulation's; allowed: 0, or "
-                "model.formulation = 'depth-averaged'"
-            )
+            if "numerics.split_levels" in given:
+                raise SceneError(
+                    f"numerics.split_levels = {_show(out['numerics.split_levels'])} is invalid with model.formulation "
+                    "= 'full': column splitting is the depth-averaged formulation's; allowed: 0 or unset, or "
+                    "model.formulation = 'depth-averaged'"
+                )
+            out["numerics.split_levels"] = 0  # the depth-averaged default: not the full model's
         if out["model.bed_curvature"] != "centrifugal":
             raise SceneError(
                 f"model.bed_curvature = {_show(out['model.bed_curvature'])} is invalid with model.formulation = "
@@ -809,5 +812,5 @@ def validate(raw: dict) -> dict:
         )
     _validate_release(out, dim, lo, hi, flat)
     _validate_axes(out, dim)
-    _validate_formulation(out, dim)
+    _validate_formulation(out, dim, flat)
     return out

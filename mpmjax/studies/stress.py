@@ -43,7 +43,8 @@ rho V0, fixed per particle) and W_g(t) = sum rho V0 g.(x(t) - x(0)) the work don
   itself deactivates a particle whose state turns non-finite and counts it in ``n_lost``, so a
   blow-up shows up as lost particles);
 * no lost particles: ``n_lost == 0`` and the active count unchanged;
-* mass: total mass sum rho V0 over active particles unchanged (exact: V0 never changes);
+* mass: total mass sum rho V0 over active particles unchanged (exact: V0 never changes, but where the
+  depth-averaged step splits a column into children of equal shares of its volume, exact too);
 * energy: E_k(t) <= E_k(0) + W_g(t) + tol * E_avail at every step, E_avail = E_k(0) + max_t W_g.
   The continuum bound is exact (the walls do no work, viscous dissipation and the stored elastic
   energy of the Tait EOS are both >= 0).  The discrete step is not exactly energy-consistent:
@@ -319,7 +320,7 @@ def run_case(case: Case, size: str = "ci", progress=None) -> dict:
         return f(np.array([a[k] for a in accs], float))
 
     act1 = np.asarray(state.active)
-    mass1 = rho * float(np.sum(vol0 * act1))
+    mass1 = rho * float(np.sum(np.asarray(state.vol0, float) * act1))  # split columns share their parent's volume
     total_v0 = float(np.sum(vol0 * act0))
     wg_max = max(ext("wg_max", np.max), 0.0)
     e_avail = ke0 + wg_max
@@ -380,7 +381,10 @@ def run_case(case: Case, size: str = "ci", progress=None) -> dict:
         fails.append("non-finite state")
     if rec["n_lost"] != 0:
         fails.append(f"{rec['n_lost']} particles lost")
-    if rec["n_active_final"] != rec["n_active_initial"] or mass1 != mass0:
+    # column splitting (depth-averaged, numerics.split_levels > 0) adds active columns, each of a share of its
+    # parent's volume (halves: exact in binary), so the mass stays exact and the count may only grow
+    grown = rec["n_active_final"] > rec["n_active_initial"] and sc.split_levels > 0
+    if (rec["n_active_final"] != rec["n_active_initial"] and not grown) or mass1 != mass0:
         fails.append(f"mass {mass0:.6g} -> {mass1:.6g}")
     if not (rec["energy_excess_over_available"] <= ENERGY_TOL):
         fails.append(f"E_k exceeds E_k0 + W_g by {rec['energy_excess_over_available']:.3g} of E_avail")
@@ -445,7 +449,7 @@ def _doc(size, recs):
         "criteria": {
             "energy": f"E_k(t) <= E_k(0) + W_g(t) + {ENERGY_TOL} E_avail at every step",
             "volume": f"J(p_ref) <= sum J V0 / sum V0 <= 1 + {EXPANSION_TOL} at every step",
-            "mass": "active count and sum rho V0 unchanged",
+            "mass": "sum rho V0 unchanged, and the active count (which only column splitting may raise)",
             "lost": "n_lost == 0",
             "finite": "x, v, J, stress, viscosity finite at every step",
         },
