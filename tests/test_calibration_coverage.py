@@ -51,3 +51,19 @@ def test_one_ci_twin_through_the_default_two_level_fit(tmp_path):
     assert row["z"]["total"]["mu0"] <= row["z"]["statistical"]["mu0"]  # the numerical std only widens
     saved = json.loads((tmp_path / "coverage.json").read_text())
     assert saved["summary"]["n_twins"] == 1 and saved["twins"][0]["fit"] == row["fit"]
+
+
+@pytest.mark.parametrize("value", ["1", "9", "2.5"])
+def test_the_data_refinement_out_of_its_range_exits_2(capsys, tmp_path, value):
+    """``--data-refine`` (the data's grid is the fit's first cell size over it): 1 would fit the data with the
+    model that made them (no resolution error at all), above 8 the data run costs more than the study; refused
+    before anything runs, naming the option, the value and the range."""
+    from mpmjax import cli
+
+    try:  # a range is checked by the command (returns 2), a non-integer by argparse (exits 2)
+        rc = cli.main(["calibrate-coverage", "--data-refine", value, "--out", str(tmp_path / "o")])
+    except SystemExit as e:
+        rc = e.code
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "--data-refine" in err and not (tmp_path / "o").exists()

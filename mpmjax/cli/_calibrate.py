@@ -293,6 +293,10 @@ def add_coverage_arguments(p) -> None:
     p.add_argument("--fit", default="mu0", help="comma-separated parameters (default mu0)")
     p.add_argument("--size", default="ci", choices=sorted(COVERAGE_SIZES), help="study size (default ci)")
     p.add_argument("--levels", help="passed to calibrate (default: its default, two levels)")
+    number(p, "--data-refine", type=int, lo=2, hi=8, default=2,
+           help="the twins' data are made on the fit's first cell size divided by this (default 2: the finer "
+                "level's own grid; 4: a grid finer than either level, so that the finer level's resolution error "
+                "is real; docs/calibration-coverage.md)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the twins' parameters and noise")
     p.add_argument("--out", default="coverage-out", help="output folder (default coverage-out)")
 
@@ -302,7 +306,8 @@ def cmd_coverage(args) -> int:
     jax.config.update("jax_enable_x64", True)
     kw = {} if args.levels is None else {"levels": args.levels}
     doc = coverage_study(
-        args.twins, fit=[s for s in args.fit.split(",") if s], size=args.size, seed=args.seed, out=args.out, **kw
+        args.twins, fit=[s for s in args.fit.split(",") if s], size=args.size, seed=args.seed, out=args.out,
+        data_refine=args.data_refine, **kw
     )
     for ln in coverage_summary(doc):
         print(ln, file=sys.stderr)
