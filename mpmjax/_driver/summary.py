@@ -171,7 +171,8 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
     creep = _tip_creep(times, fronts, sc.h, summary["time_to_rest_s"]) if shallow and sc.split_levels == 0 else None
     closing.append(creep or advancing)
     if shallow:
-        summary["sparse_volume_fraction"] = _sparse_volume_fraction(sc, state)
+        H_p = _shallow.column_depth(sc, state)  # each column's depth at the end, for both checks below
+        summary["sparse_volume_fraction"] = _sparse_volume_fraction(sc, state, H_p)
         closing.append(_sparse_warning(summary["sparse_volume_fraction"], sc.split_levels, setup.cfg["numerics.ppc"]))
     if shallow and sc.split_levels > 0:
         pool = int(info.get("split_pool", 0))
@@ -182,7 +183,6 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         # too few slots for one more split, and columns the split would split now: they were left unsplit
         wanted = 0
         if left < 2**k - 1:
-            H_p = _shallow.column_depth(sc, state)
             wanted = int(np.sum(np.asarray(_split.sparse_columns(state, H_p, k=k, h=sc.h, v_min=sc.split_min_volume))))
         summary["split_columns"]["sparse_unsplit_at_end"] = wanted
         if wanted:
@@ -205,12 +205,12 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
 SPARSE_VOLUME_WARN = 0.05
 
 
-def _sparse_volume_fraction(scene, state) -> float:
+def _sparse_volume_fraction(scene, state, H_p) -> float:
     """The share of the active columns' volume in columns sparser than the plan grid at the end: depth on the grid
     below V_p / h^k (``_split.sparse_columns`` without its smallest volume), the columns whose depth the grid does not
-    resolve (a split would halve them, where its levels and spare slots allow)."""
+    resolve (a split would halve them, where its levels and spare slots allow).  ``H_p``: each column's depth [m]
+    (``_shallow.column_depth``)."""
     k = scene.dim - 1
-    H_p = _shallow.column_depth(scene, state)
     sparse = np.asarray(_split.sparse_columns(state, H_p, k=k, h=scene.h, v_min=0.0))
     vol = np.asarray(state.vol0, float) * np.asarray(state.active)
     total = float(vol.sum())

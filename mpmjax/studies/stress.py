@@ -42,7 +42,8 @@ rho V0, fixed per particle) and W_g(t) = sum rho V0 g.(x(t) - x(0)) the work don
 * finite: every active particle's x, v, J, stress and viscosity finite at every step (the step
   itself deactivates a particle whose state turns non-finite and counts it in ``n_lost``, so a
   blow-up shows up as lost particles);
-* no lost particles: ``n_lost == 0`` and the active count unchanged;
+* no lost particles: ``n_lost == 0`` and the active count unchanged (grown only by the depth-averaged
+  step's column splitting);
 * mass: total mass sum rho V0 over active particles unchanged (exact: V0 never changes, but where the
   depth-averaged step splits a column into children of equal shares of its volume, exact too);
 * energy: E_k(t) <= E_k(0) + W_g(t) + tol * E_avail at every step, E_avail = E_k(0) + max_t W_g.
