@@ -490,7 +490,7 @@ def test_fast_bingham_slump_with_an_under_resolved_tip_stays_at_rest_without_spl
 def test_the_memory_estimate_counts_columns_and_the_plan_grid():
     """``memory_estimate`` (the run's refusal check, before anything is built) counts the depth-averaged
     formulation's particles as columns and its grid as the plan's: for field-breach-da exactly the
-    14 384 columns it seeds and 567 x 107 plan nodes (before 2026-12-05: 36 125 particles, the pond's
+    14 384 columns it seeds with as many spare slots for column splitting (since stop 58), and 567 x 107 plan nodes (before 2026-12-05: 36 125 particles, the pond's
     volume over dx^3, and 1.5 M nodes with the vertical: 354 MB instead of 45 MB of device memory)."""
     import mpmjax as m
     from mpmjax._build import memory_estimate
