@@ -44,6 +44,11 @@ def test_depth_averaged_tip_creep_is_named_and_splitting_holds_it(tmp_path, caps
     (w,) = [w for w in held["warnings"] if "sparse_volume_fraction" in w]
     assert w.startswith("28 % of the volume at the end is in columns spread more than a cell apart")
     assert "raise numerics.split_levels (= 1)" in w
+    # those 34 columns are at the smallest volume one level allows, the seeded 0.2 m x h/3 over 2: alone on the grid
+    # each reads V_p / h = 0.2 / 6 m, the thinnest layer they resolve, which one more level halves (a 1-D plan)
+    assert held["sparse_column_depth_m"] == pytest.approx(0.2 / 6, rel=1e-5)
+    assert "resolve layers down to about 0.0333 m" in w and "one more level divides that by 2" in w
+    assert "hazard" not in w  # no hazard maps in this run
 
 
 def test_the_sparse_volume_warning_holds_its_tongue_where_the_tip_is_resolved():
@@ -54,7 +59,12 @@ def test_the_sparse_volume_warning_holds_its_tongue_where_the_tip_is_resolved():
 
     from mpmjax import _shallow, load_scene
     from mpmjax._build import build
-    from mpmjax._driver.summary import SPARSE_VOLUME_WARN, _sparse_volume_fraction, _sparse_warning
+    from mpmjax._driver.summary import (
+        SPARSE_VOLUME_WARN,
+        _sparse_column_depth,
+        _sparse_volume_fraction,
+        _sparse_warning,
+    )
 
     s = build(load_scene("dambreak-lab", DA))
     st = s.state
@@ -66,6 +76,13 @@ def test_the_sparse_volume_warning_holds_its_tongue_where_the_tip_is_resolved():
     spread = st._replace(x=st.x.at[:, 0].multiply(9.0), active=seeded)  # 3 cells apart over 1.8 m of the 2 m box
     assert _sparse_volume_fraction(s.scene, spread, depth(spread)) == pytest.approx(1.0)
     assert _sparse_warning(SPARSE_VOLUME_WARN, 1, 3) is None and _sparse_warning(0.06, 1, 3).startswith("6 %")
+    # the depth they resolve: the seeded columns' own V_p / h (0.2 m over 3 columns a cell), spread or not
+    assert _sparse_column_depth(s.scene, st, depth(st)) is None
+    assert _sparse_column_depth(s.scene, spread, depth(spread)) == pytest.approx(0.2 / 3, rel=1e-5)
+    # a hazard map's threshold thinner than that is named (field-breach-da: 0.447 m against 0.1 m), a deeper one not
+    w = _sparse_warning(0.084, 1, 2, depth=0.447, per_level=4, hazard_depth=0.1)
+    assert "about 0.447 m" in w and "divides that by 4" in w and "output.hazard_depth_m = 0.1 m, is thinner" in w
+    assert "hazard" not in _sparse_warning(0.084, 1, 2, depth=0.447, per_level=4, hazard_depth=0.5)
 
 
 def test_a_pool_too_small_for_the_columns_that_want_to_split_is_named(tmp_path):

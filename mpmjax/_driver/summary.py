@@ -173,7 +173,15 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
     if shallow:
         H_p = _shallow.column_depth(sc, state)  # each column's depth at the end, for both checks below
         summary["sparse_volume_fraction"] = _sparse_volume_fraction(sc, state, H_p)
-        closing.append(_sparse_warning(summary["sparse_volume_fraction"], sc.split_levels, setup.cfg["numerics.ppc"]))
+        summary["sparse_column_depth_m"] = _sparse_column_depth(sc, state, H_p)
+        cfg = setup.cfg
+        closing.append(
+            _sparse_warning(
+                summary["sparse_volume_fraction"], sc.split_levels, cfg["numerics.ppc"],
+                depth=summary["sparse_column_depth_m"], per_level=2 ** (sc.dim - 1),
+                hazard_depth=cfg["output.hazard_depth_m"] if cfg["output.hazard_maps"] else None,
+            )
+        )
     if shallow and sc.split_levels > 0:
         pool = int(info.get("split_pool", 0))
         left = int(np.sum(np.asarray(_split.spare_slots(state))))
@@ -217,16 +225,46 @@ def _sparse_volume_fraction(scene, state, H_p) -> float:
     return float(vol[sparse].sum()) / total if total > 0 else 0.0
 
 
-def _sparse_warning(fraction: float, levels: int, ppc: int) -> str | None:
+def _sparse_column_depth(scene, state, H_p) -> float | None:
+    """The depth [m] the sparse columns at the end would read alone, their volume over a plan cell V_p / h^k (the
+    median over them; None where none is sparse): the thinnest layer those columns can resolve.  A layer thinner than
+    this is read as a row of lumps about this deep, whatever h (the column's volume shrinks with the cell): on
+    field-breach-da unsplit 0.8-1.0 m on a counter-slope whose resolved layer is 0.2-0.5 m (docs/depth-averaged.md,
+    'The field breach with splitting')."""
+    k = scene.dim - 1
+    sparse = np.asarray(_split.sparse_columns(state, H_p, k=k, h=scene.h, v_min=0.0))
+    if not sparse.any():
+        return None
+    return float(np.median(np.asarray(state.vol0, float)[sparse])) / scene.h**k
+
+
+def _sparse_warning(
+    fraction: float, levels: int, ppc: int, *, depth: float | None = None, per_level: int = 2,
+    hazard_depth: float | None = None,
+) -> str | None:
     """The warning for a depth-averaged run whose columns at the end leave more than ``SPARSE_VOLUME_WARN`` of the
-    volume in layers thinner than the grid resolves."""
+    volume in layers thinner than the grid resolves.  ``depth``: :func:`_sparse_column_depth`, named with what one
+    more level of splitting (``per_level`` = 2^k children a column) makes of it, and against ``hazard_depth``
+    (output.hazard_depth_m, where hazard maps are written) when that is thinner."""
     if not fraction > SPARSE_VOLUME_WARN:
         return None
+    thin = ""
+    if depth is not None:
+        thin = (
+            f"; those columns resolve layers down to about {depth:.3g} m (their volume over a plan cell, "
+            f"sparse_column_depth_m; a thinner layer reads as lumps about that deep), and one more level divides that "
+            f"by {per_level}"
+        )
+        if hazard_depth is not None and hazard_depth < depth:
+            thin += (
+                f"; the hazard maps' wet threshold, output.hazard_depth_m = {hazard_depth:g} m, is thinner, so their "
+                "outline there is not resolved"
+            )
     return (
         f"{100 * fraction:.0f} % of the volume at the end is in columns spread more than a cell apart (their depth on "
         "the grid below their volume over a plan cell; sparse_volume_fraction), a layer the grid does not resolve: a "
         "deposit's tip held there stops short (measured: dambreak-lab in this formulation at 3 columns a cell and one "
-        "level, 28 %, 1.21 m against 1.33-1.37 m resolved); raise numerics.split_levels "
+        f"level, 28 %, 1.21 m against 1.33-1.37 m resolved){thin}; raise numerics.split_levels "
         f"(= {levels}) with numerics.split_pool, or numerics.ppc (= {ppc}) (docs/depth-averaged.md, 'Creep after "
         "arrest')"
     )
