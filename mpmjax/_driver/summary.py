@@ -251,14 +251,14 @@ def _sparse_warning(
     thin = ""
     if depth is not None:
         thin = (
-            f"; those columns resolve layers down to about {depth:.3g} m (their volume over a plan cell, "
-            f"sparse_column_depth_m; a thinner layer reads as lumps about that deep), and one more level divides that "
-            f"by {per_level}"
+            f"; those columns resolve layers down to about {depth:.3g} m (the median of their volume over a plan "
+            f"cell, sparse_column_depth_m; a thinner layer reads as lumps about that deep), and one more level, with room "
+            f"in the pool, divides that by {per_level}"
         )
         if hazard_depth is not None and hazard_depth < depth:
             thin += (
                 f"; the hazard maps' wet threshold, output.hazard_depth_m = {hazard_depth:g} m, is thinner, so their "
-                "outline there is not resolved"
+                "outline in that layer is not resolved"
             )
     return (
         f"{100 * fraction:.0f} % of the volume at the end is in columns spread more than a cell apart (their depth on "
