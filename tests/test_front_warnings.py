@@ -93,7 +93,12 @@ def test_a_pool_too_small_for_the_columns_that_want_to_split_is_named(tmp_path):
     n = s["split_columns"]["sparse_unsplit_at_end"]
     assert s["split_columns"]["slots_used"] == 3 and n > 0
     (w,) = [w for w in s["warnings"] if "slots" in w]
-    assert f"{n} column(s) sparse at the end were left unsplit" in w and "raise numerics.split_pool" in w
+    assert f"{n} column(s) sparse at the end, " in w and "were left unsplit" in w and "raise numerics.split_pool" in w
+    # their share of the volume, named with them: part of the volume the sparse-volume fraction counts (columns the
+    # pool left unsplit are sparse; sparse columns at the smallest volume are not in it)
+    share = s["split_columns"]["sparse_unsplit_volume_fraction"]
+    assert 0.0 < share <= s["sparse_volume_fraction"] + 1e-12
+    assert f"{100 * share:.2g} % of the volume" in w
 
 
 def test_a_run_ended_while_its_front_still_moves_says_so(tmp_path, capsys):
