@@ -178,7 +178,7 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         closing.append(
             _sparse_warning(
                 summary["sparse_volume_fraction"], sc.split_levels, cfg["numerics.ppc"],
-                depth=summary["sparse_column_depth_m"], per_level=2 ** (sc.dim - 1),
+                depth=summary["sparse_column_depth_m"], per_level=2 ** (sc.dim - 1),  # 2^k children a split
                 hazard_depth=cfg["output.hazard_depth_m"] if cfg["output.hazard_maps"] else None,
             )
         )
@@ -191,10 +191,8 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
         # too few slots for one more split, and columns the split would split now: they were left unsplit
         wanted, share = 0, 0.0
         if left < 2**k - 1:
-            unsplit = np.asarray(_split.sparse_columns(state, H_p, k=k, h=sc.h, v_min=sc.split_min_volume))
-            wanted = int(np.sum(unsplit))
-            vol = np.asarray(state.vol0, float) * np.asarray(state.active)
-            share = float(vol[unsplit].sum() / vol.sum()) if vol.sum() > 0 else 0.0
+            unsplit = _sparse_mask(sc, state, H_p, v_min=sc.split_min_volume)
+            wanted, share = int(np.sum(unsplit)), _volume_share(state, unsplit)
         summary["split_columns"]["sparse_unsplit_at_end"] = wanted
         # their share of the volume: a user weighs the remedy's cost against it (field-breach-da at one level leaves 86
         # columns unsplit, and a pool of 2 moves its front by 1 m at 1.6x the cost)
@@ -220,16 +218,24 @@ def complete_summary(base: dict, setup, state, acc: dict, schedule, compile_s: f
 SPARSE_VOLUME_WARN = 0.05
 
 
+def _sparse_mask(scene, state, H_p, v_min: float = 0.0) -> np.ndarray:
+    """The active columns sparser than the plan grid (``_split.sparse_columns``; ``v_min`` 0: whatever their volume)."""
+    return np.asarray(_split.sparse_columns(state, H_p, k=scene.dim - 1, h=scene.h, v_min=v_min))
+
+
+def _volume_share(state, mask) -> float:
+    """The share of the active columns' volume in the columns ``mask`` selects (0 with no volume)."""
+    vol = np.asarray(state.vol0, float) * np.asarray(state.active)
+    total = float(vol.sum())
+    return float(vol[mask].sum()) / total if total > 0 else 0.0
+
+
 def _sparse_volume_fraction(scene, state, H_p) -> float:
     """The share of the active columns' volume in columns sparser than the plan grid at the end: depth on the grid
     below V_p / h^k (``_split.sparse_columns`` without its smallest volume), the columns whose depth the grid does not
     resolve (a split would halve them, where its levels and spare slots allow).  ``H_p``: each column's depth [m]
     (``_shallow.column_depth``)."""
-    k = scene.dim - 1
-    sparse = np.asarray(_split.sparse_columns(state, H_p, k=k, h=scene.h, v_min=0.0))
-    vol = np.asarray(state.vol0, float) * np.asarray(state.active)
-    total = float(vol.sum())
-    return float(vol[sparse].sum()) / total if total > 0 else 0.0
+    return _volume_share(state, _sparse_mask(scene, state, H_p))
 
 
 def _sparse_column_depth(scene, state, H_p) -> float | None:
@@ -238,11 +244,10 @@ def _sparse_column_depth(scene, state, H_p) -> float | None:
     this is read as a row of lumps about this deep, whatever h (the column's volume shrinks with the cell): on
     field-breach-da unsplit 0.8-1.0 m on a counter-slope whose resolved layer is 0.2-0.5 m (docs/depth-averaged.md,
     'The field breach with splitting')."""
-    k = scene.dim - 1
-    sparse = np.asarray(_split.sparse_columns(state, H_p, k=k, h=scene.h, v_min=0.0))
+    sparse = _sparse_mask(scene, state, H_p)
     if not sparse.any():
         return None
-    return float(np.median(np.asarray(state.vol0, float)[sparse])) / scene.h**k
+    return float(np.median(np.asarray(state.vol0, float)[sparse])) / scene.h ** (scene.dim - 1)
 
 
 def _sparse_warning(
