@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import ROUNDOFF, SHAPES
+from conftest import ROUNDOFF, SHAPES, TEST_XLA_FLAGS
 
 import mpmjax as m
 from mpmjax import _shapes
@@ -223,14 +223,14 @@ def test_compiled_stencil_is_consistent_on_knife_edges(emitters):
     fusion and not in another): the GIMP and quadratic kinds put particles' weights one cell off, in
     float32 and float64 (``_shapes._half_base``).  Checked on 6000 particles per case placed on those
     edges and nudged by up to 3 ulps, 2D and 3D, float32 and float64, every kind, compiled with the
-    harness's XLA emitters and the library's default ones (this harness uses the older ones,
+    harness's XLA flags and the library's defaults (this harness uses the older ones,
     conftest.py, hence the subprocesses): linear reproduction on the nodes the indices name,
     sum_i w_ip x_i = x_p, must hold to far better than the h a one-cell slip breaks it by (count of
     particles off by more than h/10: 0; the previous code: 6-64 per case for the 3-node kinds),
     and the slab decomposition's ``first_plane`` must name the stencil's first plane."""
     env = dict(os.environ, JAX_PLATFORMS="cpu")
     if emitters == "library default":
-        env["XLA_FLAGS"] = env.get("XLA_FLAGS", "").replace("--xla_cpu_use_fusion_emitters=false", "")
+        env["XLA_FLAGS"] = " ".join(f for f in env.get("XLA_FLAGS", "").split() if f not in TEST_XLA_FLAGS)
     p = subprocess.run([sys.executable, "-c", _KNIFE_EDGE], capture_output=True, text=True, env=env, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
     res = json.loads(p.stdout.strip().splitlines()[-1])
