@@ -2,7 +2,8 @@
 x_inf (REFERENCE.md: Balmforth et al. 2006, Matson & Hogg 2007): a block H0 = 0.1 m high and
 L = aspect H0 long against a symmetry wall, no-slip bed, tau_y from the Bingham number
 B = tau_y L/(rho g H0^2); prints the front per frame and its error as one JSON line
-(docs/validation.md, "Incompressible limit").
+(docs/validation.md, "Incompressible limit"), and against the lubrication solution at the frames' times
+(``lubrication_fronts``, ``err_vs_lubrication_pct``: the reference while the slump still moves).
 
     .venv/bin/python benchmarks/accuracy/incompressible_slump.py B ASPECT CELLS_OVER_H0 T_END [key=value ...]
     .venv/bin/python benchmarks/accuracy/incompressible_slump.py 0.05 1 16 20 numerics.pressure=incompressible
@@ -63,7 +64,14 @@ col = np.floor(xa[:, 0] / h).astype(int)
 top = np.zeros(col.max() + 1)
 np.maximum.at(top, col, xa[:, 1] + 0.5 * h / cfg["numerics.ppc"])
 area_ratio = float(np.sum(top) * h / np.sum(Ja * V0a))
+# the lubrication solution at the frames' times (mpmjax.studies.lubrication, measured as the headline front): the
+# reference for a slump that has not come to rest, which x_inf is not
+from mpmjax.studies.lubrication import headline_front, slump_profiles
+
+lx, lh, _ = slump_profiles(L, H0, tau, mu, [(k + 1) * t_end / sc.n_frames for k in range(sc.n_frames)], density_kg_m3=rho, g_m_s2=g)
+lub = [headline_front(lx, hk) for hk in lh]
 print(json.dumps(dict(B=B, asp=asp, cells=cells, over=over, xinf=xinf, front=fronts[-1], err_pct=100*(fronts[-1]-xinf)/xinf,
+      lubrication_fronts=[round(f_, 4) for f_ in lub], err_vs_lubrication_pct=100*(fronts[-1]-lub[-1])/lub[-1],
       fronts=[round(f_,4) for f_ in fronts], packing=packing, area_ratio=area_ratio, vmax=float(np.abs(v).max()), dt=sc.dt, steps=sc.n_steps, wall=wall, cpu=cpu,
       J=[float(np.asarray(st.J)[a].min()), float(np.asarray(st.J)[a].max())], lost=int(st.n_lost))))
 if os.environ.get("MPMJAX_SLUMP_DUMP"):
