@@ -38,7 +38,8 @@ def make_params(cfg: dict, dim: int | None = None, dtype="float32") -> Params:
     dt = jnp.dtype(dtype)
 
     def a(key):
-        return jnp.asarray(cfg[key], dt)
+        # an optional parameter the scene left out (the bulk modulus where the step does not use it)
+        return jnp.asarray(_rheology.UNUSED if cfg[key] is None else cfg[key], dt)
 
     law = _rheology.MODELS[cfg["material.model"]]
     mat = law.params_type(**{p.name: a(p.key) for p in law.params})

@@ -89,9 +89,14 @@ def config_hash(cfg: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _finite_or_none(x: float):
+    return x if math.isfinite(x) else None
+
+
 def params_dict(params) -> dict:
     mat = params.material
-    d = {f"material.{k}": float(np.asarray(v)) for k, v in mat._asdict().items()}
+    # a parameter the scene left out because the step does not use it (``_rheology.UNUSED``, inf) is null
+    d = {f"material.{k}": _finite_or_none(float(np.asarray(v))) for k, v in mat._asdict().items()}
     d["gravity_m_s2"] = np.asarray(params.gravity).tolist()
     return d
 

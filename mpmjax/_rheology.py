@@ -49,6 +49,7 @@ Units: SI throughout (Pa, Pa s, s, kg/m^3).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import ClassVar, NamedTuple
 
 import jax.numpy as jnp
@@ -69,10 +70,12 @@ class Param:
 
     name: field of the law's parameter NamedTuple (and calibration's parameter name);
     key: scene key (``material.*``, the SI unit in its name); unit: SI unit; doc: meaning;
-    default: value where a scene omits the key (None: required); lo / lo_open / hi: the
-    allowed range (inclusive unless ``lo_open``); bounds: calibration's default search
+    default: value where a scene omits the key (None: required, unless ``optional``); lo / lo_open /
+    hi: the allowed range (inclusive unless ``lo_open``); bounds: calibration's default search
     range (lo, hi) [SI], wide enough to hold every value in the thesis and the literature
-    it cites, with margin.
+    it cites, with margin.  ``optional``: the key may be left out where the step does not use the
+    parameter (the scene's value is then None, and the parameter ``UNUSED``); the schema's validation
+    says where it is required.
     """
 
     name: str
@@ -84,6 +87,29 @@ class Param:
     lo_open: bool = False
     hi: float | None = None
     bounds: tuple[float, float] | None = None
+    optional: bool = False
+
+
+
+
+def bulk_modulus_unused(cfg) -> str | None:
+    """Why the step of the validated scene ``cfg`` does not read ``KAPPA``, or None where it does (the
+    particles' pressure, ``numerics.pressure = "explicit"``, in the full formulation).  Where it is unused,
+    the scene may leave it out (the schema's validation) and it cannot be fitted or varied
+    (``mpmjax.unused_parameters``)."""
+    if cfg["model.formulation"] == "depth-averaged":
+        return "the depth-averaged step (model.formulation = 'depth-averaged') has no bulk modulus"
+    if cfg["numerics.pressure"] == "incompressible":
+        return (
+            "numerics.pressure = 'incompressible' solves the pressure on the grid, so the bulk modulus "
+            "(material.bulk_modulus_pa) does not enter; set numerics.pressure=explicit to vary it"
+        )
+    return None
+
+
+# the value an ``optional`` parameter the scene left out takes in ``Params``: the step does not read it (for
+# kappa: the grid pressure and the depth-averaged model keep the volume without it; incompressible, kappa = inf)
+UNUSED = math.inf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,10 +143,14 @@ KAPPA = Param(
     "kappa",
     "material.bulk_modulus_pa",
     "Pa",
-    "Bulk modulus kappa of the Tait EOS.",
+    "Bulk modulus kappa of the Tait EOS: the particles' pressure with numerics.pressure = explicit (and its "
+    "Maxwell modulus, unless numerics.maxwell_shear_modulus_pa is set), where it is required. The grid pressure "
+    "(numerics.pressure = incompressible) and the depth-averaged model (model.formulation = depth-averaged) do not "
+    "use it, and there it may be left out.",
     lo=0.0,
     lo_open=True,
     bounds=(1.0, 1e12),
+    optional=True,
 )
 # Newtonian, Bingham.
 VISCOSITY = Param(

@@ -62,16 +62,8 @@ def unused_parameters(cfg) -> dict[str, str]:
     varying one would change nothing (a flat loss, identical cases): the bulk modulus ``kappa`` where
     the pressure is solved on the grid (``numerics.pressure = "incompressible"``) or the flow is
     depth-averaged (``model.formulation``)."""
-    if cfg["model.formulation"] == "depth-averaged":
-        why = "the depth-averaged step (model.formulation = 'depth-averaged') has no bulk modulus"
-    elif cfg["numerics.pressure"] == "incompressible":
-        why = (
-            "numerics.pressure = 'incompressible' solves the pressure on the grid, so the bulk modulus "
-            "(material.bulk_modulus_pa) does not enter; set numerics.pressure=explicit to vary it"
-        )
-    else:
-        return {}
-    return {"kappa": why}
+    why = _rheology.bulk_modulus_unused(cfg)
+    return {} if why is None else {_rheology.KAPPA.name: why}
 
 
 def _absent(value) -> bool:

@@ -14,6 +14,9 @@
   1e-6, and vmap over two viscosities equals the two separate runs.
 """
 
+import json
+
+import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,7 +24,7 @@ import pytest
 from conftest import COUSSOT_BASE
 
 import mpmjax as m
-from mpmjax import _boundary, _pressure, _transfer
+from mpmjax import _boundary, _pressure, _transfer, cli
 from mpmjax._step import _linear_conditions, _wall_masks, make_step
 
 
@@ -39,6 +42,8 @@ def _layer(pressure="incompressible", dim=2, kappa=1e5, dtype="float64", mu=1.0,
         "material": {"model": "newtonian", "density_kg_m3": 1500.0, "bulk_modulus_pa": kappa, "viscosity_pa_s": mu},
         "bodies": [{"lo_m": [0.0] * dim, "hi_m": [0.4] * (dim - 1) + [0.2]}],
     }
+    if kappa is None:  # left out
+        del raw["material"]["bulk_modulus_pa"]
     for k, v in (extra or {}).items():
         if "." in k:
             sec, name = k.split(".", 1)
@@ -190,6 +195,37 @@ def test_kappa_does_not_enter():
         runs.append((s.scene.dt, m.run(s.scene, s.state, s.params)[0].x))
     assert runs[0][0] == runs[1][0]
     np.testing.assert_array_equal(np.asarray(runs[0][1]), np.asarray(runs[1][1]))
+
+
+def test_the_bulk_modulus_may_be_left_out_where_nothing_reads_it(tmp_path, capsys):
+    """material.bulk_modulus_pa is required by the explicit pressure alone (``_rheology.bulk_modulus_unused``):
+    a grid-pressure scene without it runs bit for bit as with it (kappa = inf in Params, null in a result's
+    ``params_json``), and an explicit scene without it is refused, in Python and by the CLI (exit 2), naming the
+    key and both ways out."""
+    kw = dict(dtype="float32", t_end=0.1, h=0.1)
+    left, given = _layer(kappa=None, **kw), _layer(kappa=1e5, **kw)
+    assert left.scene.dt == given.scene.dt and float(left.params.material.kappa) == np.inf
+    a = m.run(left.scene, left.state, left.params)[0].x
+    b = m.run(given.scene, given.state, given.params)[0].x
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(m.SceneError, match="missing required key material.bulk_modulus_pa with numerics.pressure"):
+        _layer(kappa=None, pressure="explicit", **kw)
+    da = m.load_scene("field-dambreak-da")  # the depth-averaged scenes leave it out
+    assert da["material.bulk_modulus_pa"] is None and "kappa" in m.unused_parameters(da)
+    scene = tmp_path / "no_kappa.toml"
+    scene.write_text(
+        "[domain]\ndim = 2\nlo_m = [0.0, 0.0]\nhi_m = [0.4, 0.4]\ncell_size_m = 0.1\n"
+        "[time]\nt_end_s = 0.02\nn_frames = 1\n"
+        '[material]\nmodel = "newtonian"\ndensity_kg_m3 = 1500.0\nviscosity_pa_s = 1.0\n'
+        "[[bodies]]\nlo_m = [0.0, 0.0]\nhi_m = [0.4, 0.2]\n"
+    )
+    assert cli.main(["run", str(scene), "--quiet", "--out", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "material.bulk_modulus_pa" in err and "numerics.pressure = 'incompressible'" in err
+    argv = ["run", str(scene), "--set", "numerics.pressure=incompressible", "--quiet", "--no-animation"]
+    assert cli.main([*argv, "--out", str(tmp_path / "b")]) == 0
+    with h5py.File(next((tmp_path / "b").rglob("*.h5")), "r") as f:
+        assert json.loads(f.attrs["params_json"])["material.kappa"] is None
 
 
 def _newtonian_final(mu, pressure="incompressible", dtype="float64", t_end=0.05, closure="off"):

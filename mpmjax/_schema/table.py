@@ -18,7 +18,7 @@ def _material_key(decl) -> Key:
     """The schema entry of a law's ``Param`` or ``Option``."""
     if isinstance(decl, _rheology.Option):
         return Key(str, decl.default, "-", decl.doc, choices=decl.choices)
-    default = _REQ if decl.default is None else decl.default
+    default = (None if decl.optional else _REQ) if decl.default is None else decl.default
     return Key(float, default, decl.unit, decl.doc, lo=decl.lo, lo_open=decl.lo_open, hi=decl.hi)
 
 
