@@ -9,7 +9,8 @@ surface's partly filled cells do not count.  1: no voids.
     .venv/bin/python benchmarks/accuracy/row_packing.py s16.npz           # incompressible_slump.py's MPMJAX_SLUMP_DUMP
 
 2D results (x along the bed, y up); a result's frames by index (default: the last).  Prints one line per frame:
-the rows' packing from the bed up, with the number of columns averaged.
+the rows' packing from the bed up, with the number of columns averaged, and the lowest particle's height over
+the particle spacing s per 5-cell stretch of bed (0.5: a full lattice's bottom row, which sits at s/2).
 """
 import sys
 
@@ -35,14 +36,25 @@ def rows(x, vol, h):
     return out
 
 
-def show(label, r):
+def lowest(x, vol, h):
+    """The lowest particle's height over the particle spacing, per stretch of 5 h along the bed."""
+    s = float(np.sqrt(np.median(vol)))
+    ix = np.floor(x[:, 0] / (5.0 * h)).astype(int)
+    low = np.full(ix.max() + 1, np.inf)
+    np.minimum.at(low, ix, x[:, 1])
+    return low / s
+
+
+def show(label, x, vol, h):
+    r = rows(x, vol, h)
     print(label + ": " + " ".join(f"row {j}: {p:.3f} ({n})" for j, p, n in r))
+    print("  lowest particle / s per 5 h: " + " ".join(f"{v:.2f}" for v in lowest(x, vol, h)))
 
 
 path = sys.argv[1]
 if path.endswith(".npz"):
     d = np.load(path)
-    show(path, rows(d["x"], d["vol"], float(d["h"])))
+    show(path, d["x"], d["vol"], float(d["h"]))
 else:
     h = float(sys.argv[2])
     with h5py.File(path, "r") as f:
@@ -51,4 +63,4 @@ else:
         for k in frames:
             a = f["frames/active"][k].astype(bool)
             x, J = f["frames/x_m"][k], f["frames/J"][k]
-            show(f"{path} t = {float(f['frames/t_s'][k]):.2f} s", rows(x[a], (vol0 * J)[a], h))
+            show(f"{path} t = {float(f['frames/t_s'][k]):.2f} s", x[a], (vol0 * J)[a], h)
