@@ -54,6 +54,13 @@ for f in sys.argv[1:]:
     print(f"{f}: farthest particle {xf:.4f} m (x_inf {float(d['xinf']):.4f} m), apparent yield stress "
           f"{rho * g * a / 2 / tau:.2f} tau_y (the exact static shape to the same front, read the same way: "
           f"{a_exact / k:.3f} tau_y)")
+    # incompressible_slump.py's area_ratio (each column of width h: its top particle + half a spacing, over the
+    # particles' area) of the exact static shape of x_inf, filled at this spacing: the measure's own bias
+    exact = static_shape(float(d["xinf"]), k, s)
+    col = np.floor(exact[:, 0] / h).astype(int)
+    top = np.zeros(col.max() + 1)
+    np.maximum.at(top, col, exact[:, 1] + 0.5 * s)
+    print(f"  area_ratio of the exact static shape of x_inf at this spacing: {np.sum(top) * h / (len(exact) * s * s):.4f}")
     if "dev" not in d:
         continue
     T = d["dev"]
