@@ -74,8 +74,8 @@ class Param:
     hi: the allowed range (inclusive unless ``lo_open``); bounds: calibration's default search
     range (lo, hi) [SI], wide enough to hold every value in the thesis and the literature
     it cites, with margin.  ``optional``: the key may be left out where the step does not use the
-    parameter (the scene's value is then None, and the parameter ``UNUSED``); the schema's validation
-    says where it is required.
+    parameter (``unused_parameters``; the scene's value is then None, and the parameter ``UNUSED``); the
+    schema's validation requires it everywhere else.
     """
 
     name: str
@@ -90,21 +90,21 @@ class Param:
     optional: bool = False
 
 
-
-
-def bulk_modulus_unused(cfg) -> str | None:
-    """Why the step of the validated scene ``cfg`` does not read ``KAPPA``, or None where it does (the
-    particles' pressure, ``numerics.pressure = "explicit"``, in the full formulation).  Where it is unused,
-    the scene may leave it out (the schema's validation) and it cannot be fitted or varied
-    (``mpmjax.unused_parameters``)."""
+def unused_parameters(cfg) -> dict[str, str]:
+    """Name -> why, for the material parameters the step of the validated scene ``cfg`` does not read:
+    the bulk modulus ``KAPPA`` except with the particles' pressure (``numerics.pressure = "explicit"``) in
+    the full formulation.  There an ``optional`` parameter may be left out (the schema's validation
+    requires it everywhere else), and none can be fitted or varied (``mpmjax.unused_parameters``)."""
     if cfg["model.formulation"] == "depth-averaged":
-        return "the depth-averaged step (model.formulation = 'depth-averaged') has no bulk modulus"
-    if cfg["numerics.pressure"] == "incompressible":
-        return (
+        why = "the depth-averaged step (model.formulation = 'depth-averaged') has no bulk modulus"
+    elif cfg["numerics.pressure"] == "incompressible":
+        why = (
             "numerics.pressure = 'incompressible' solves the pressure on the grid, so the bulk modulus "
             "(material.bulk_modulus_pa) does not enter; set numerics.pressure=explicit to vary it"
         )
-    return None
+    else:
+        return {}
+    return {KAPPA.name: why}
 
 
 # the value an ``optional`` parameter the scene left out takes in ``Params``: the step does not read it (for

@@ -62,8 +62,7 @@ def unused_parameters(cfg) -> dict[str, str]:
     varying one would change nothing (a flat loss, identical cases): the bulk modulus ``kappa`` where
     the pressure is solved on the grid (``numerics.pressure = "incompressible"``) or the flow is
     depth-averaged (``model.formulation``)."""
-    why = _rheology.bulk_modulus_unused(cfg)
-    return {} if why is None else {_rheology.KAPPA.name: why}
+    return _rheology.unused_parameters(cfg)
 
 
 def _absent(value) -> bool:

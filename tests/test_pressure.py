@@ -198,7 +198,7 @@ def test_kappa_does_not_enter():
 
 
 def test_the_bulk_modulus_may_be_left_out_where_nothing_reads_it(tmp_path, capsys):
-    """material.bulk_modulus_pa is required by the explicit pressure alone (``_rheology.bulk_modulus_unused``):
+    """material.bulk_modulus_pa is required by the explicit pressure alone (``_rheology.unused_parameters``):
     a grid-pressure scene without it runs bit for bit as with it (kappa = inf in Params, null in a result's
     ``params_json``), and an explicit scene without it is refused, in Python and by the CLI (exit 2), naming the
     key and both ways out."""

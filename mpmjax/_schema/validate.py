@@ -411,15 +411,17 @@ def _check_wall_yield(out: dict, given: dict):
 def _check_pressure(out: dict):
     """numerics.pressure = incompressible keeps the volume itself: the particle-level volume devices
     and the slab decomposition (whose halos the grid solve does not exchange) are refused.  The
-    depth-averaged step uses neither pressure; ``_validate_formulation`` checks its keys.  The bulk modulus is
-    required by the explicit pressure alone (``_rheology.KAPPA``)."""
-    kappa = _rheology.KAPPA.key
-    if kappa in out and out[kappa] is None and _rheology.bulk_modulus_unused(out) is None:
-        raise SceneError(
-            f"missing required key {kappa} with numerics.pressure = 'explicit' (the particles' pressure comes from "
-            f"their J through the Tait EOS with it; unit: Pa); set it (e.g. {kappa} = 15000.0, the thesis's BASE), "
-            "or set numerics.pressure = 'incompressible' (the pressure solved on the grid, which does not use it)"
-        )
+    depth-averaged step uses neither pressure; ``_validate_formulation`` checks its keys.  An ``optional``
+    material parameter (the bulk modulus) is required wherever the step reads it
+    (``_rheology.unused_parameters``)."""
+    unused = _rheology.unused_parameters(out)
+    for p in _rheology.MODELS[out["material.model"]].params:
+        if p.optional and out[p.key] is None and p.name not in unused:
+            raise SceneError(
+                f"missing required key {p.key} with numerics.pressure = {out['numerics.pressure']!r} and "
+                f"model.formulation = {out['model.formulation']!r} ({p.doc} Unit: {p.unit}); set it, or set "
+                "numerics.pressure = 'incompressible' (the pressure solved on the grid, which does not use it)"
+            )
     if out["numerics.stress_quadrature"] == "corrected":
         needs = (
             ("model.formulation", ("full",)),
