@@ -292,6 +292,12 @@ def test_scenes_keys_prints_required_unquoted(capsys):
     out = capsys.readouterr().out
     assert "default=(required)" in out and "'(required)'" not in out
     assert "default='gimp'" in out and not NUMPY_REPR.search(out)
+    # a key with no default value says what it is, as docs/scenes.md does: optional (None) or worked out (NaN)
+    assert "default=None" not in out and "default=nan" not in out
+    line = next(ln for ln in out.splitlines() if ln.startswith("material.bulk_modulus_pa "))
+    assert "default=(none)" in line
+    line = next(ln for ln in out.splitlines() if ln.startswith("output.runout_origin_m "))
+    assert "default=(derived)" in line
 
 
 # ------------------------------------------------------------------ item 10: progress estimate

@@ -14,6 +14,19 @@ def _body_rows():
         yield f"bodies[].{sub}", spec
 
 
+def default_label(spec) -> str | None:
+    """How a key's default reads where it is not a value: ``(required)``, ``(derived)`` (NaN: worked out from
+    the scene) or ``(none)`` (None: the key is optional, or needed only where its doc says); None for a value
+    (shown as its repr).  The one rule for ``mpmjax scenes --keys`` and the reference table."""
+    if spec.default is _REQ:
+        return "(required)"
+    if isinstance(spec.default, float) and math.isnan(spec.default):
+        return "(derived)"
+    if spec.default is None:
+        return "(none)"
+    return None
+
+
 def schema_markdown() -> str:
     """The scene-key reference as a Markdown table (docs/scenes.md is generated from it); the keys
     of a [[bodies]] table follow the ``bodies`` row as ``bodies[].KEY``."""
@@ -24,12 +37,11 @@ def schema_markdown() -> str:
         if key == "bodies":
             items.extend(_body_rows())
     for key, spec in items:
+        label = default_label(spec)
         if spec.default is _REQ:
             default = "required" if not key.startswith("bodies[]") else _body_required(key[len("bodies[].") :])
-        elif isinstance(spec.default, float) and math.isnan(spec.default):
-            default = "(derived)"
         else:
-            default = f"`{spec.default!r}`" if spec.default is not None else "(none)"
+            default = f"`{spec.default!r}`" if label is None else label
         if spec.choices:
             allowed = ", ".join(f"`{c}`" for c in spec.choices)
         else:

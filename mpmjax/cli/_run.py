@@ -6,7 +6,8 @@ import tomllib
 from pathlib import Path
 
 from .._driver import ANIMATION_MAX_FRAMES, CHECKPOINT_EVERY, run_scene
-from .._schema import _REQ, SCHEMA, builtin_scenes
+from .._schema import SCHEMA, builtin_scenes
+from .._schema.reference import default_label
 from ._guard import number
 from ._status import UsageError
 
@@ -18,7 +19,7 @@ def add_scenes_arguments(p) -> None:
 def cmd_scenes(args) -> int:
     if args.keys:
         for key, spec in SCHEMA.items():
-            default = "(required)" if spec.default is _REQ else repr(spec.default)
+            default = default_label(spec) or repr(spec.default)
             rng = ""
             if spec.choices:
                 rng = "one of " + ", ".join(map(str, spec.choices))
