@@ -154,6 +154,9 @@ def run_one(case: str, overrides: dict, npz_path: Path | None = None) -> dict:
     _, hs = profile(case, x, vol0, act, sc.hi[0])
     rec["profile_m"] = hs.tolist()
     rec["area_m2"] = float(np.sum(vol0[act]))  # rest volume [m^2 per metre]: the slump's exact x_f
+    if case == "slump":  # the area under its free surface against its particles' volume (voids)
+        rec["occupied_area_m2"] = slump_occupied_area(x[act], vol0[act], sc.h)
+        rec["volume_m2"] = float(np.sum((vol0 * np.asarray(final.J))[act]))
     return rec
 
 
@@ -221,6 +224,30 @@ def deposit_packing(x, J, vol0, cell_m: float) -> float:
     inner = np.zeros_like(occ)
     inner[1:-1, :-1] = occ[1:-1, :-1] & occ[2:, :-1] & occ[:-2, :-1] & occ[1:-1, 1:]
     return float(np.mean(vol_j[inner] / b**2))
+
+
+def occupied_area(x, cell_m: float, spacing: float) -> float:
+    """Area under a 2D deposit's free surface [m^2 per metre]: columns of width ``cell_m``, each up to its top
+    particle plus half the particle ``spacing``.  ``x`` (n, 2) [m], active only."""
+    col = np.floor(x[:, 0] / cell_m).astype(int)
+    top = np.full(col.max() + 1, np.nan)
+    np.fmax.at(top, col, x[:, 1] + 0.5 * spacing)
+    return float(np.nansum(top) * cell_m)
+
+
+def slump_occupied_area(x, vol0, cell_m: float) -> float:
+    """``occupied_area`` of a slump's deposit with the measure's own bias removed: divided by what it reads on
+    the exact static profile holding the same rest area, filled on a lattice at the particles' spacing (1.008
+    at 16 cells over the block, 1.002 at 64, ppc 2).  The issue's "no voids" compares it with Sigma J V0."""
+    spacing = float(np.sqrt(np.median(vol0)))
+    x_f, k = _slump_exact(float(np.sum(vol0)))
+    xs = (np.arange(int(x_f / spacing) + 1) + 0.5) * spacing
+    ys = (np.arange(int(math.sqrt(k * x_f) / spacing) + 1) + 0.5) * spacing
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    keep = Y**2 < k * (x_f - X)
+    lattice = np.stack([X[keep], Y[keep]], 1)
+    bias = occupied_area(lattice, cell_m, spacing) / (2.0 / 3.0 * x_f * math.sqrt(k * x_f))
+    return occupied_area(x, cell_m, spacing) / bias
 
 
 def profile(case: str, x, vol0, active, x_hi: float):

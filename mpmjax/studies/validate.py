@@ -18,8 +18,9 @@ and wall clock; a case of several runs sums them.
 
 A case with several checks (``lab-kappa``; the inertia-free slumps: x_inf, and the same slump in the
 lubrication limit solved to the run's end time, ``lubrication``; the held block: its front and its
-thickest point against its own at t = 0) reports the check with the largest
-error/tolerance ratio as its error; all checks are in ``checks``.
+thickest point against its own at t = 0; the inertial slump: its front against a lower bound, which only
+an error below it fails, and its voids) reports the failed check with the largest error/tolerance ratio
+as its error, or where none failed the check with the largest ratio; all checks are in ``checks``.
 """
 
 from __future__ import annotations
@@ -291,6 +292,10 @@ INERTIAL_SIZE = {
 }
 
 
+# issue 31's "no voids": the volume under the free surface equals sum J V0 within 3 %
+INERTIAL_VOIDS = 0.03
+
+
 def _inertial_cfgs(size, base):
     return [converge.case_config("slump", {**base, **INERTIAL_SIZE[size]})]
 
@@ -312,7 +317,11 @@ def _inertial_run(size, base, rec):
         profile_err_pct=r["profile_err_pct"],
         front_err_def_pct=r["front_err_def_pct"],
     )
-    rec["checks"] = [_check("front vs exact x_f", r["runout_m"], r["exact_front_m"], rec["tolerance"])]
+    rec.update(occupied_area_m2=r["occupied_area_m2"], volume_m2=r["volume_m2"])
+    rec["checks"] = [
+        _check("front vs x_f (a lower bound)", r["runout_m"], r["exact_front_m"], rec["tolerance"], bound="lower"),
+        _check("area under the free surface vs sum J V0", r["occupied_area_m2"], r["volume_m2"], INERTIAL_VOIDS),
+    ]
 
 
 # --------------------------------------------------------------------------------------
@@ -713,16 +722,21 @@ def _shear_run(size, base, rec):
 # --------------------------------------------------------------------------------------
 
 
-def _check(name: str, measured: float, reference: float, tol: float) -> dict:
+def _check(name: str, measured: float, reference: float, tol: float, bound: str | None = None) -> dict:
+    """A relative check; ``bound = "lower"``: the reference is a lower bound on the measured value (the inertial
+    slump's static front), so only an error below -tol fails, and an error above it is reported, not judged."""
     err = (measured - reference) / reference
-    return {
+    out = {
         "name": name,
         "measured": measured,
         "reference": reference,
         "error": err,
         "tolerance": tol,
-        "pass": bool(abs(err) <= tol),
+        "pass": bool(err >= -tol if bound == "lower" else abs(err) <= tol),
     }
+    if bound is not None:
+        out["bound"] = bound
+    return out
 
 
 @dataclasses.dataclass(frozen=True)
@@ -798,9 +812,14 @@ CASES: dict[str, Case] = {
             "slump-inertial",
             "converge.py's Bingham slump (tau_y 82 Pa, mu 7 Pa s) to rest, h = 0.0125 m, 6 s",
             "front of the exact static profile h = sqrt(2 tau_y (x_f - x)/(rho g)) holding the released area "
-            "(Coussot, Proust & Ancey 1996; converge.slump_errors)",
+            "(Coussot, Proust & Ancey 1996; converge.slump_errors): a lower bound on the front, exact without "
+            "inertia (a static layer has rho g H |H'| <= tau_y, so it lies under the critical profile through its "
+            "own front); and the deposit's area under its free surface against its particles' volume sum J V0",
             0.05,
-            "the same 5 % as the inertia-free slumps: one acceptance for every Bingham deposit",
+            "5 % below the lower bound, the inertia-free slumps' acceptance; a front beyond it is reported, not "
+            "judged (with inertia a deposit runs past it by an amount no exact solution gives: docs/voids.md, "
+            "'The inertial slump'); the area within 3 %, issue 31's no-voids target, which fails a front carried "
+            "out by voids or by volume gained",
             _inertial_cfgs,
             _inertial_run,
             "loop CPU measured on 2 shared cores (explicit / incompressible): 3.2 s / 3.8 s",
@@ -933,7 +952,8 @@ CASES: dict[str, Case] = {
 def _finish(rec: dict, size: str) -> None:
     """Error, pass and a status from the checks."""
     if rec.get("status") == "ok" and rec.get("checks"):
-        worst = max(rec["checks"], key=lambda c: abs(c["error"]) / c["tolerance"])
+        # a failed check first: a one-sided check can pass beyond its tolerance
+        worst = max(rec["checks"], key=lambda c: (not c["pass"], abs(c["error"]) / c["tolerance"]))
         rec["error"] = worst["error"]
         rec["error_check"] = worst["name"]
     elif rec.get("status") == "ok":
