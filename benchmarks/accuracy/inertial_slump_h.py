@@ -7,7 +7,10 @@ profile through its own front): a lower bound on the front, exact only without i
 more area than its particles' volume, so each line also gives the area under its free surface
 (``converge.slump_occupied_area``) over its rest volume and over sum J V0, and x_f of that occupied area.
 
-    .venv/bin/python benchmarks/accuracy/inertial_slump_h.py incompressible,explicit 0.0125,0.00625,0.003125 [t_end_s]
+    .venv/bin/python benchmarks/accuracy/inertial_slump_h.py incompressible,explicit 0.0125,0.00625,0.003125 [t_end_s [KEY=VALUE ...]]
+
+KEY=VALUE: further scene overrides (numbers as numbers), e.g. material.papanastasiou_m_s=1e5,
+numerics.maxwell_shear_modulus_pa=2e5, numerics.dtype=float64.
 """
 import json
 import sys
@@ -17,9 +20,19 @@ from mpmjax.studies import converge
 pressures = sys.argv[1].split(",")
 cells = [float(a) for a in sys.argv[2].split(",")]
 t_end = float(sys.argv[3]) if len(sys.argv) > 3 else 6.0
+
+
+def _value(v):
+    try:
+        return float(v)
+    except ValueError:
+        return v
+
+
+extra = {k: _value(v) for k, v in (a.split("=", 1) for a in sys.argv[4:])}
 for h in cells:
     for pressure in pressures:
-        ov = {"domain.cell_size_m": h, "time.t_end_s": t_end, "time.n_frames": 12, "numerics.pressure": pressure}
+        ov = {"domain.cell_size_m": h, "time.t_end_s": t_end, "time.n_frames": 12, "numerics.pressure": pressure, **extra}
         r = converge.run_one("slump", ov)
         out = {k: r.get(k) for k in ("status", "reason", "n_steps", "n_particles", "cpu_s", "runout_m", "runout_farthest_m", "max_speed_m_s")}
         if r["status"] == "ok":
@@ -32,4 +45,4 @@ for h in cells:
                 occupied_x_f_m=xf_occ,
                 front_vs_occupied_x_f_pct=100.0 * (r["runout_m"] - xf_occ) / xf_occ,
             )
-        print(json.dumps(dict(pressure=pressure, h_m=h, t_end_s=t_end, **out)), flush=True)
+        print(json.dumps(dict(pressure=pressure, h_m=h, t_end_s=t_end, overrides=extra, **out)), flush=True)
