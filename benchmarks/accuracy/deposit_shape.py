@@ -20,6 +20,8 @@ import sys
 
 import numpy as np
 
+from mpmjax.studies.converge import static_slump_lattice  # the static profile filled at the run's spacing
+
 
 def fitted(x, h, s):
     """a of H^2 = a (x_f - x) over the columns of width h between 10 and 85 % of the farthest particle x_f;
@@ -33,15 +35,6 @@ def fitted(x, h, s):
     return np.sum(H**2 * (xf - X)) / np.sum((xf - X) ** 2)
 
 
-def static_shape(xf, k, s):
-    """Particles on a lattice of spacing s filling H^2 = k (xf - x), 0 < x < xf."""
-    xs = (np.arange(int(xf / s) + 1) + 0.5) * s
-    ys = (np.arange(int(np.sqrt(k * xf) / s) + 1) + 0.5) * s
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    inside = Y < np.sqrt(np.maximum(k * (xf - X), 0.0))
-    return np.stack([X[inside], Y[inside]], axis=1)
-
-
 for f in sys.argv[1:]:
     d = np.load(f)
     x, h = d["x"], float(d["h"])
@@ -50,13 +43,13 @@ for f in sys.argv[1:]:
     k = 2.0 * tau / (rho * g)
     xf = x[:, 0].max()
     a = fitted(x, h, s)
-    a_exact = fitted(static_shape(xf, k, s), h, s)
+    a_exact = fitted(static_slump_lattice(xf, k, s), h, s)
     print(f"{f}: farthest particle {xf:.4f} m (x_inf {float(d['xinf']):.4f} m), apparent yield stress "
           f"{rho * g * a / 2 / tau:.2f} tau_y (the exact static shape to the same front, read the same way: "
           f"{a_exact / k:.3f} tau_y)")
     # incompressible_slump.py's area_ratio (each column of width h: its top particle + half a spacing, over the
     # particles' area) of the exact static shape of x_inf, filled at this spacing: the measure's own bias
-    exact = static_shape(float(d["xinf"]), k, s)
+    exact = static_slump_lattice(float(d["xinf"]), k, s)
     col = np.floor(exact[:, 0] / h).astype(int)
     top = np.zeros(col.max() + 1)
     np.maximum.at(top, col, exact[:, 1] + 0.5 * s)

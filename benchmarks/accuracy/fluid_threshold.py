@@ -1,5 +1,5 @@
 """The grid pressure's bed-row voids against the packing at which a cell joins the solve (issue 31's "no voids";
-docs/voids.md, "Why: cells join the solve part-filled").
+docs/voids.md, "Why: the bed row forms part-filled, and nothing refills it").
 
 A cell is an unknown of the pressure solve once its packing reaches ``_pressure.FLUID_FRACTION`` (0.5); from then on
 the solve keeps its volume, and with ``numerics.void_closure = "off"`` nothing refills it.  This runs ``dambreak-lab``

@@ -17,7 +17,8 @@ def _body_rows():
 def default_label(spec) -> str | None:
     """How a key's default reads where it is not a value: ``(required)``, ``(derived)`` (NaN: worked out from
     the scene) or ``(none)`` (None: the key is optional, or needed only where its doc says); None for a value
-    (shown as its repr).  The one rule for ``mpmjax scenes --keys`` and the reference table."""
+    (shown as its repr).  ``mpmjax scenes --keys`` prints it; the reference table (``schema_markdown``) too, but for
+    a required key, which it words itself ("required", or which body types need it)."""
     if spec.default is _REQ:
         return "(required)"
     if isinstance(spec.default, float) and math.isnan(spec.default):

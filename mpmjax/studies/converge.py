@@ -58,7 +58,7 @@ import numpy as np
 
 from .._build import build
 from .._io import _jsonable, atomic_write_text
-from .._metrics import RunoutGauge
+from .._metrics import RunoutGauge, surface_profile
 from .._observables import FRONT_FRACTION, gaussian_kernel
 from .._schema import SceneError, load_scene, validate
 from .._shapes import STENCIL
@@ -179,6 +179,9 @@ def slump_errors(rec: dict, h: float) -> None:
     whole = xs <= 0.9 * x_f
     # the definition on the exact profile: smoothed with bandwidth h, last crossing of 10 % of its max
     xf_def = _exact_front_by_definition(x_f, k, h)
+    if "occupied_area_m2" in rec:  # the same front for the area the deposit occupies (voids included)
+        xo, ko = _slump_exact(rec["occupied_area_m2"])
+        rec.update(occupied_front_m=xo, occupied_front_by_definition_m=_exact_front_by_definition(xo, ko, h))
     rec.update(
         exact_front_m=x_f,
         exact_front_by_definition_m=xf_def,
@@ -227,26 +230,30 @@ def deposit_packing(x, J, vol0, cell_m: float) -> float:
 
 
 def occupied_area(x, cell_m: float, spacing: float) -> float:
-    """Area under a 2D deposit's free surface [m^2 per metre]: columns of width ``cell_m``, each up to its top
-    particle plus half the particle ``spacing``.  ``x`` (n, 2) [m], active only."""
-    col = np.floor(x[:, 0] / cell_m).astype(int)
-    top = np.full(col.max() + 1, np.nan)
-    np.fmax.at(top, col, x[:, 1] + 0.5 * spacing)
+    """Area under a 2D deposit's free surface [m^2 per metre] from x = 0: columns of width ``cell_m``, each up to its
+    top particle plus half the particle ``spacing`` (``_metrics.surface_profile``).  ``x`` (n, 2) [m], active only."""
+    n_bins = int(np.floor(np.max(x[:, 0]) / cell_m)) + 1
+    _, top = surface_profile(x, np.ones(len(x), bool), cell_m * np.arange(n_bins + 1), spacing)
     return float(np.nansum(top) * cell_m)
 
 
-def slump_occupied_area(x, vol0, cell_m: float) -> float:
-    """``occupied_area`` of a slump's deposit with the measure's own bias removed: divided by what it reads on
-    the exact static profile holding the same rest area, filled on a lattice at the particles' spacing (1.008
-    at 16 cells over the block, 1.002 at 64, ppc 2).  The issue's "no voids" compares it with Sigma J V0."""
-    spacing = float(np.sqrt(np.median(vol0)))
-    x_f, k = _slump_exact(float(np.sum(vol0)))
+def static_slump_lattice(x_f: float, k: float, spacing: float) -> np.ndarray:
+    """Particles on a square lattice of ``spacing`` [m] filling the static slump profile H^2 = k (x_f - x),
+    0 < x < x_f: what a perfect deposit's particles would be, for reading a measure's own bias."""
     xs = (np.arange(int(x_f / spacing) + 1) + 0.5) * spacing
     ys = (np.arange(int(math.sqrt(k * x_f) / spacing) + 1) + 0.5) * spacing
     X, Y = np.meshgrid(xs, ys, indexing="ij")
     keep = Y**2 < k * (x_f - X)
-    lattice = np.stack([X[keep], Y[keep]], 1)
-    bias = occupied_area(lattice, cell_m, spacing) / (2.0 / 3.0 * x_f * math.sqrt(k * x_f))
+    return np.stack([X[keep], Y[keep]], 1)
+
+
+def slump_occupied_area(x, vol0, cell_m: float) -> float:
+    """``occupied_area`` of a slump's deposit with the measure's own bias removed: divided by what it reads on
+    the static profile holding the same rest area, filled at the particles' spacing (``static_slump_lattice``;
+    1.008 at 16 cells over the block, 1.002 at 64, ppc 2).  Issue 31's "no voids" compares it with Sigma J V0."""
+    spacing = float(np.sqrt(np.median(vol0)))
+    x_f, k = _slump_exact(float(np.sum(vol0)))
+    bias = occupied_area(static_slump_lattice(x_f, k, spacing), cell_m, spacing) / (2.0 / 3.0 * x_f * math.sqrt(k * x_f))
     return occupied_area(x, cell_m, spacing) / bias
 
 

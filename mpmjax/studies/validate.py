@@ -18,9 +18,9 @@ and wall clock; a case of several runs sums them.
 
 A case with several checks (``lab-kappa``; the inertia-free slumps: x_inf, and the same slump in the
 lubrication limit solved to the run's end time, ``lubrication``; the held block: its front and its
-thickest point against its own at t = 0; the inertial slump: its front against a lower bound, which only
-an error below it fails, and its voids) reports the failed check with the largest error/tolerance ratio
-as its error, or where none failed the check with the largest ratio; all checks are in ``checks``.
+thickest point against its own at t = 0; the inertial slump: its front and its voids) reports the failed
+check with the largest error/tolerance ratio as its error (``error_check``, ``error_tolerance``), or where
+none failed the check with the largest ratio; all checks are in ``checks``.
 """
 
 from __future__ import annotations
@@ -318,9 +318,11 @@ def _inertial_run(size, base, rec):
         front_err_def_pct=r["front_err_def_pct"],
     )
     rec.update(occupied_area_m2=r["occupied_area_m2"], volume_m2=r["volume_m2"])
+    # the reference front read as the run's is (converge.slump_errors: the exact profile smoothed with the run's
+    # bandwidth, 10 % of its thickest point), 1.2 % behind x_f at 1.25 cm
     rec["checks"] = [
-        _check("front vs x_f (a lower bound)", r["runout_m"], r["exact_front_m"], rec["tolerance"], bound="lower"),
-        _check("area under the free surface vs sum J V0", r["occupied_area_m2"], r["volume_m2"], INERTIAL_VOIDS),
+        _check("front vs x_f read as the run's front", r["runout_m"], r["exact_front_by_definition_m"], rec["tolerance"]),
+        _check("area under the free surface vs sum J V0", r["occupied_area_m2"], r["volume_m2"], INERTIAL_VOIDS, "m^2"),
     ]
 
 
@@ -722,9 +724,8 @@ def _shear_run(size, base, rec):
 # --------------------------------------------------------------------------------------
 
 
-def _check(name: str, measured: float, reference: float, tol: float, bound: str | None = None) -> dict:
-    """A relative check; ``bound = "lower"``: the reference is a lower bound on the measured value (the inertial
-    slump's static front), so only an error below -tol fails, and an error above it is reported, not judged."""
+def _check(name: str, measured: float, reference: float, tol: float, unit: str | None = None) -> dict:
+    """A relative check, within tol either way; ``unit``: the measured value's, where it is not the case's."""
     err = (measured - reference) / reference
     out = {
         "name": name,
@@ -732,10 +733,10 @@ def _check(name: str, measured: float, reference: float, tol: float, bound: str 
         "reference": reference,
         "error": err,
         "tolerance": tol,
-        "pass": bool(err >= -tol if bound == "lower" else abs(err) <= tol),
+        "pass": bool(abs(err) <= tol),
     }
-    if bound is not None:
-        out["bound"] = bound
+    if unit is not None:
+        out["unit"] = unit
     return out
 
 
@@ -811,15 +812,15 @@ CASES: dict[str, Case] = {
         Case(
             "slump-inertial",
             "converge.py's Bingham slump (tau_y 82 Pa, mu 7 Pa s) to rest, h = 0.0125 m, 6 s",
-            "front of the exact static profile h = sqrt(2 tau_y (x_f - x)/(rho g)) holding the released area "
-            "(Coussot, Proust & Ancey 1996; converge.slump_errors): a lower bound on the front, exact without "
-            "inertia (a static layer has rho g H |H'| <= tau_y, so it lies under the critical profile through its "
-            "own front); and the deposit's area under its free surface against its particles' volume sum J V0",
+            "front of the static lubrication profile h = sqrt(2 tau_y (x_f - x)/(rho g)) holding the released "
+            "area (Coussot, Proust & Ancey 1996; converge.slump_errors), read with the run's own front definition; "
+            "exact neither way for this slump (inertia carries a deposit past it, and in 2D the normal deviatoric "
+            "stress lets a static one stand steeper than the lubrication profile: docs/voids.md, 'The inertial "
+            "slump'); and the deposit's area under its free surface against its particles' volume sum J V0, "
+            "within 3 %",
             0.05,
-            "5 % below the lower bound, the inertia-free slumps' acceptance; a front beyond it is reported, not "
-            "judged (with inertia a deposit runs past it by an amount no exact solution gives: docs/voids.md, "
-            "'The inertial slump'); the area within 3 %, issue 31's no-voids target, which fails a front carried "
-            "out by voids or by volume gained",
+            "5 %: the inertia-free slumps' acceptance, one for every Bingham deposit; the area within 3 %, issue "
+            "31's no-voids target, which fails a front carried out by voids",
             _inertial_cfgs,
             _inertial_run,
             "loop CPU measured on 2 shared cores (explicit / incompressible): 3.2 s / 3.8 s",
@@ -952,10 +953,11 @@ CASES: dict[str, Case] = {
 def _finish(rec: dict, size: str) -> None:
     """Error, pass and a status from the checks."""
     if rec.get("status") == "ok" and rec.get("checks"):
-        # a failed check first: a one-sided check can pass beyond its tolerance
+        # a failed check first, then the largest error for its tolerance
         worst = max(rec["checks"], key=lambda c: (not c["pass"], abs(c["error"]) / c["tolerance"]))
         rec["error"] = worst["error"]
         rec["error_check"] = worst["name"]
+        rec["error_tolerance"] = worst["tolerance"]  # a case's checks may hold different tolerances
     elif rec.get("status") == "ok":
         rec.update(status="failed", reason="no check was computed")
     if size != "full":
@@ -985,9 +987,11 @@ def markdown(doc: dict) -> str:
         if len(r.get("checks") or []) > 1 and worst:
             # the row's error is its worst check's: show that check's reference and value, and name it
             ref, measured, named = worst[0]["reference"], worst[0]["measured"], f" ({worst[0]['name']})"
+        unit = worst[0].get("unit", r.get("unit", "")) if worst else r.get("unit", "")
+        tol = r.get("error_tolerance", r["tolerance"])
         rows.append(
-            f"| {name} | {_fmt(ref, '.4g')} {r.get('unit', '')}{named} | {_fmt(measured, '.4g')} "
-            f"| {_fmt(None if r.get('error') is None else 100 * r['error'], '+.2f')} | {100 * r['tolerance']:.3g} "
+            f"| {name} | {_fmt(ref, '.4g')} {unit}{named} | {_fmt(measured, '.4g')} "
+            f"| {_fmt(None if r.get('error') is None else 100 * r['error'], '+.2f')} | {100 * tol:.3g} "
             f"| {_fmt(r.get('cpu_s'), '.1f')} | {_fmt(r.get('wall_s'), '.1f')} | {_fmt(r.get('n_steps'), 'd')} "
             f"| {verdict} |"
         )
@@ -1016,7 +1020,8 @@ def plot(doc: dict, path: Path) -> None:
     ]
     floor = 1e-3  # [%]: an error below it is drawn at it (log axis)
     ax.bar(xs, [max(e, floor) for e in err], color=colour)
-    ax.scatter(xs, [100 * r["tolerance"] for r in recs], marker="_", s=400, c="k", zorder=3, label="tolerance")
+    tols = [100 * r.get("error_tolerance", r["tolerance"]) for r in recs]  # the tolerance of the error drawn
+    ax.scatter(xs, tols, marker="_", s=400, c="k", zorder=3, label="tolerance")
     for x, r, e in zip(xs, recs, err):
         label = f"{e:.2g}" if r.get("error") is not None else r.get("status", "?")
         ax.text(x, max(e, floor), label, rotation=90, ha="center", va="bottom", fontsize=7)
@@ -1156,7 +1161,7 @@ def run_validate(
         err = None if rec.get("error") is None else 100 * rec["error"]
         log(
             f"  {name:28s} {rec['status']:8s} error {_fmt(err, '+.2f')}"
-            f" % (tol {100 * rec['tolerance']:.3g} %)  cpu {_fmt(rec.get('cpu_s'), '.1f')} s  pass {rec.get('pass')}"
+            f" % (tol {100 * rec.get('error_tolerance', rec['tolerance']):.3g} %)  cpu {_fmt(rec.get('cpu_s'), '.1f')} s  pass {rec.get('pass')}"
             + (" (reused)" if rec.get("reused") else "")
             + (f"  {rec.get('reason')}" if rec.get("reason") else "")
         )
