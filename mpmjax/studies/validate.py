@@ -966,6 +966,11 @@ def _finish(rec: dict, size: str) -> None:
         rec["pass"] = rec.get("status") == "ok" and all(c["pass"] for c in rec["checks"])
 
 
+def _error_tolerance(r: dict) -> float:
+    """The tolerance of the check a record reports as its error (records written before stop 61: the case's)."""
+    return r.get("error_tolerance", r["tolerance"])
+
+
 def _fmt(v, spec):
     return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
 
@@ -988,7 +993,7 @@ def markdown(doc: dict) -> str:
             # the row's error is its worst check's: show that check's reference and value, and name it
             ref, measured, named = worst[0]["reference"], worst[0]["measured"], f" ({worst[0]['name']})"
         unit = worst[0].get("unit", r.get("unit", "")) if worst else r.get("unit", "")
-        tol = r.get("error_tolerance", r["tolerance"])
+        tol = _error_tolerance(r)
         rows.append(
             f"| {name} | {_fmt(ref, '.4g')} {unit}{named} | {_fmt(measured, '.4g')} "
             f"| {_fmt(None if r.get('error') is None else 100 * r['error'], '+.2f')} | {100 * tol:.3g} "
@@ -1020,7 +1025,7 @@ def plot(doc: dict, path: Path) -> None:
     ]
     floor = 1e-3  # [%]: an error below it is drawn at it (log axis)
     ax.bar(xs, [max(e, floor) for e in err], color=colour)
-    tols = [100 * r.get("error_tolerance", r["tolerance"]) for r in recs]  # the tolerance of the error drawn
+    tols = [100 * _error_tolerance(r) for r in recs]
     ax.scatter(xs, tols, marker="_", s=400, c="k", zorder=3, label="tolerance")
     for x, r, e in zip(xs, recs, err):
         label = f"{e:.2g}" if r.get("error") is not None else r.get("status", "?")
@@ -1161,7 +1166,7 @@ def run_validate(
         err = None if rec.get("error") is None else 100 * rec["error"]
         log(
             f"  {name:28s} {rec['status']:8s} error {_fmt(err, '+.2f')}"
-            f" % (tol {100 * rec.get('error_tolerance', rec['tolerance']):.3g} %)  cpu {_fmt(rec.get('cpu_s'), '.1f')} s  pass {rec.get('pass')}"
+            f" % (tol {100 * _error_tolerance(rec):.3g} %)  cpu {_fmt(rec.get('cpu_s'), '.1f')} s  pass {rec.get('pass')}"
             + (" (reused)" if rec.get("reused") else "")
             + (f"  {rec.get('reason')}" if rec.get("reason") else "")
         )
