@@ -75,6 +75,18 @@ def _walls(scene: Scene):
     return out
 
 
+def cell_grid(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(grid origin [m], cells per axis) of the scene's grid: a periodic axis has as many cells as nodes (the
+    last cell wraps onto the first node), another one fewer."""
+    return np.asarray(scene.grid_origin, float), np.asarray(scene.grid_shape) - (~np.asarray(scene.periodic)).astype(int)
+
+
+def cells_of(x, origin: np.ndarray, n_cells: np.ndarray, h: float):
+    """The cell index per axis (n, dim) of positions ``x`` [m], clipped to the grid."""
+    cell = jnp.floor((x - jnp.asarray(origin, x.dtype)[None, :]) / h).astype(jnp.int32)
+    return jnp.clip(cell, 0, jnp.asarray(n_cells - 1, jnp.int32)[None, :])
+
+
 def make_wall_yield(scene: Scene, axis: str | None = None):
     """``material(state, material, shear) -> material`` with the wall row's effective yield stress (per
     particle) in place of the law's, or None where the scene's setting, law or walls leave nothing to do.
@@ -87,16 +99,14 @@ def make_wall_yield(scene: Scene, axis: str | None = None):
     if not applies(scene.shape, scene.shear_measure, scene.formulation):
         return None
     dim, h = scene.dim, scene.h
-    origin = np.asarray(scene.grid_origin, float)
-    n_cells = np.asarray(scene.grid_shape) - 1
+    origin, n_cells = cell_grid(scene)
     name = law.yield_stress_param
 
     def material(state, mat, shear):
         dtp = state.x.dtype
         x = state.x
         vol = state.vol0 * state.active.astype(dtp)
-        cell = jnp.floor((x - jnp.asarray(origin, dtp)[None, :]) / h).astype(jnp.int32)
-        cell = jnp.clip(cell, 0, jnp.asarray(n_cells - 1, jnp.int32)[None, :])
+        cell = cells_of(x, origin, n_cells, h)
         delta = jnp.zeros(x.shape[0], dtp)
         for a, point, sign in walls:
             t_axes = [b for b in range(dim) if b != a]
