@@ -31,19 +31,12 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
+from mpmjax.studies.validate import LAB_COUSSOT  # noqa: E402  (after the configuration above)
 
-# Thesis Table 8 BASE Coussot material (Annex 2 cap mu_max = 5000 Pa s), as a scene [material] table.
-COUSSOT_BASE = {
-    "model": "coussot",
-    "density_kg_m3": 1850.0,
-    "bulk_modulus_pa": 15000.0,
-    "mu0_pa_s": 4.0,
-    "alpha": 1.0,
-    "T_s": 0.5,
-    "n": 2.5,
-    "lambda0": 1.5,
-    "mu_max_pa_s": 5000.0,
-}
+
+# Thesis Table 8 BASE Coussot material (Annex 2 cap mu_max = 5000 Pa s), as a scene [material] table: the one
+# mpmjax validate's Coussot cases use
+COUSSOT_BASE = LAB_COUSSOT
 
 
 def tree_allclose(a, b, rtol=1e-7, atol=0.0):
