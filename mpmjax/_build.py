@@ -534,6 +534,7 @@ def build(cfg: dict) -> Setup:
         stress_quadrature=cfg["numerics.stress_quadrature"],
         maxwell_rotation=cfg["numerics.maxwell_rotation"],
         wall_yield=cfg["numerics.wall_yield"],
+        cell_shear=cfg["numerics.cell_shear"],
         formulation=cfg["model.formulation"],
         bed_curvature=cfg["model.bed_curvature"],
         split_levels=int(cfg["numerics.split_levels"]) if shallow else 0,

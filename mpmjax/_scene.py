@@ -187,6 +187,8 @@ class Scene:
         ``_quadrature``; experimental).
       wall_yield: ``cell`` or ``wall`` (where the row of particles on a no-slip box face tests its
         yield stress; ``_wall_yield``).
+      cell_shear: ``uniform`` or ``series`` (how a cell's particles share its shear across the bed;
+        ``_cell_shear``).
       formulation: ``full`` (the MPM of this module's conventions, in ``dim`` dimensions) or
         ``depth-averaged`` (particles are columns on the plan of the first dim - 1 axes: ``_shallow``).
       bed_curvature: depth-averaged only: ``centrifugal`` (the bed's curvature u.K.u in the columns'
@@ -232,6 +234,7 @@ class Scene:
     maxwell_rotation: str = "lag"
     formulation: str = "full"
     wall_yield: str = "wall"
+    cell_shear: str = "uniform"
     bed_curvature: str = "centrifugal"
     split_levels: int = 0
     split_min_volume: float = 0.0

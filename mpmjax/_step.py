@@ -51,6 +51,7 @@ from ._boundary import (
     pipe_nodes,
     terrain_velocity,
 )
+from ._cell_shear import make_cell_shear
 from ._constitutive import deviatoric_update, shear_measures, shear_rate
 from ._fusion import VELOCITY_GRADIENT, boundary, derivative_boundary, saved
 from ._pressure import make_projection
@@ -179,6 +180,7 @@ def make_step(scene: Scene, axis: str | None = None):
         project = make_projection(scene, linear, node_fill(scene), constrained=not coulomb)
 
     wall_material = make_wall_yield(scene, axis)  # numerics.wall_yield = "wall", else None
+    cell_series = make_cell_shear(scene, axis)  # numerics.cell_shear = "series", else None
 
     m_empty = EMPTY_NODE_FRACTION * scene.h**dim if np.dtype(scene.dtype) == np.float32 else 0.0
 
@@ -285,6 +287,9 @@ def make_step(scene: Scene, axis: str | None = None):
             gate = gate | (state.active & beyond)
         # numerics.wall_yield = "wall": the wall row's yield stress as if tested at the wall (_wall_yield)
         material = params.material if wall_material is None else wall_material(state, params.material, shear)
+        if cell_series is not None:
+            # numerics.cell_shear = "series": the cell's particles sheared in series across the bed (_cell_shear)
+            shear, dprime, dd = cell_series(state, material, shear, dprime, dd)
         mu, internal = rheo.viscosity(material, shear, state.internal, dt, gate)
         tau = deviatoric_update(
             state.tau, L, dprime, mu, scene.maxwell_G, dt, scene.viscous_update, scene.maxwell_rotation

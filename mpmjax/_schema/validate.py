@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import _bodies, _dem, _quadrature, _release, _rheology, _shapes, _wall_yield
+from .. import _bodies, _cell_shear, _dem, _quadrature, _release, _rheology, _shapes, _wall_yield
 from .._boundary import inflow_layout
 from .._scene import WALL_KINDS
 from .keys import _REQ, BODY_KEYS, BODY_TYPES, Key, SceneError
@@ -376,6 +376,24 @@ def _validate_material(flat: dict, out: dict) -> None:
                 f"{hi_p.key} = {_show(b)} is invalid with {lo_p.key} = {_show(a)}: allowed range: >= {lo_p.key} "
                 f"= {_show(a)} ({hi_p.unit}); material.model = {model!r} needs {lo_name} <= {hi_name}"
             )
+
+
+def _check_cell_shear(out: dict):
+    """numerics.cell_shear = "series" needs one strain rate per cell and a rate in 1/s (``_cell_shear.applies``):
+    refused otherwise, naming the key that conflicts (the default, uniform, acts everywhere)."""
+    measure = out.get("material.shear_measure", "standard")
+    if out["numerics.cell_shear"] != "series" or _cell_shear.applies(out["numerics.shape"], measure, out["model.formulation"]):
+        return
+    if out["model.formulation"] == "depth-averaged":
+        why = f"model.formulation = {_show(out['model.formulation'])} (a column has no cells across its depth)"
+    elif out["numerics.shape"] not in _wall_yield.SHAPES:
+        why = (
+            f"numerics.shape = {_show(out['numerics.shape'])} (the series assumes one strain rate per cell); allowed: "
+            f"numerics.shape = {' or '.join(repr(x) for x in _wall_yield.SHAPES)}"
+        )
+    else:
+        why = f"material.shear_measure = {_show(measure)} (needs a rate in 1/s); allowed: material.shear_measure = 'standard'"
+    raise SceneError(f"numerics.cell_shear = 'series' is invalid with {why}, or numerics.cell_shear = 'uniform'")
 
 
 def _check_wall_yield(out: dict, given: dict):
@@ -796,6 +814,7 @@ def validate(raw: dict) -> dict:
         _check_float32_range(out)
     _check_pressure(out)
     _check_wall_yield(out, flat)
+    _check_cell_shear(out)
     lo, hi, h = _validate_domain(out)
     if dim == 2:
         only3 = [k for k in flat if SCHEMA[k].only_3d]
