@@ -8,23 +8,25 @@ the cell's velocity difference is the sum.  That matters for a law whose particl
 (Coussot: the structure lambda is each particle's history).  A thixotropic layer near its flow curve's
 minimum stress shears in a band at the bed whose edge is a jump of two orders in viscosity (lambda 0.4
 below it, 7 above, the lab material), and with one rate per cell that edge can only sit on a cell
-boundary: the band is a whole number of cells, and a 5 cm layer's mean speed is -15.5 / +12.6 % off its
+boundary: the band is a whole number of cells, and a 5 cm layer's mean speed is -15.5 / +12.5 % off its
 one-dimensional solution at 5 / 10 cells across it (docs/coussot-film.md).
 
-``series``: in each cell, the shear stress across the bed's axis a is taken as linear,
-tau(y) = tau_bar + (y - y_c) G_c, with the gradient G_c measured from the stress itself (the mean bed-normal
-traction |tau . e_a| of the cells above and below, centred; one-sided in the first and last cells; an
-empty neighbour a free surface, traction 0).  Particle p's shear rate across the bed is then
-max(tau(y_p), 0) / mu_p, mu_p the law's viscosity at its own state, with tau_bar such that the cell's
-volume-weighted mean of those rates is the grid's (the kinematics unchanged):
+``series``: in each cell, each shear component across the bed's axis a (tau_ba, b != a, signed) is taken
+as linear across the cell, tau(y) = tau_bar + (y - y_c) G_c, with the gradient G_c measured from the stress
+itself: the cells' mean tractions tau_ba, centred between the neighbours above and below that hold
+material, one-sided toward the one there is (a free surface; a no-slip face, behind which the grid's
+cells hold nothing), zero in a cell with neither.  Particle p's rate across the bed is then
+(tau_bar + (y_p - y_c) G_c) / mu_p, mu_p the law's viscosity at its own state, with tau_bar such that the
+cell's volume-weighted mean of those rates is the grid's (the kinematics unchanged):
 
     tau_bar = (sum V g - G_c sum V (y - y_c) / mu) / sum V / mu,
 
-g the particles' rates from the grid.  The particle's shear components across the bed (d'_ab, d'_ba,
-b != a) are scaled to its own rate; its structure advances with it and its stress relaxes to it, so
-the cell's stress is the series (harmonic) mean.  The stress gradient seeds the band: the lower
-particles of the band's edge cell shear faster and break down, the upper ones rebuild and jam.  In a
-cell whose particles share one state and no stress gradient it changes nothing.
+g = 2 d'_ba the particles' rates from the grid.  The particle's d'_ab and d'_ba are set to its own rate
+(the spin, and the other components, stay the grid's); its structure advances with it and its stress
+relaxes to it, so the cell's stress across the bed is the series (harmonic) mean.  The stress gradient
+seeds the band: the lower particles of the band's edge cell shear faster and break down, the upper ones
+rebuild and jam.  In a cell whose particles share one state and see no stress gradient it changes
+nothing.  The band's edge is then resolved to a particle layer (h / ppc) instead of a cell.
 
 Where: laws with internal variables (Coussot), the linear or GIMP shape, the standard shear measure, the
 full formulation, and a no-slip box face on the last axis (the bed, as ``_pressure``'s vertical); a
@@ -38,7 +40,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._constitutive import _safe_sqrt, shear_rate
+from ._constitutive import shear_rate
 from ._scene import Scene
 from ._wall_yield import _walls, cell_grid, cells_of
 from ._wall_yield import applies as _one_rate_per_cell
@@ -74,20 +76,10 @@ def make_cell_shear(scene: Scene, axis: str | None = None):
     n_all = int(np.prod(n_cells))
     strides = np.array([int(np.prod(n_cells[b + 1 :])) for b in range(dim)], np.int32)
     t_axes = [b for b in range(dim) if b != a]
-    across = np.zeros((dim, dim))  # the shear components across the bed: d'_ab and d'_ba, b != a
-    for b in t_axes:
-        across[a, b] = across[b, a] = 1.0
-    # the rows of cells inside the no-slip faces across the bed's axis (the grid extends behind a box wall)
+    # the ends of the grid along the bed's axis: no neighbour beyond them (the roll would wrap)
     idx = np.indices(tuple(n_cells))[a]
-    first = np.zeros(tuple(n_cells), bool)
-    last = np.zeros(tuple(n_cells), bool)
-    for ax, point, sign in _walls(scene):
-        if ax == a:
-            k = int(round((point - scene.grid_origin[a]) / h))
-            if sign > 0:
-                first |= idx == k
-            else:
-                last |= idx == k - 1
+    top_end, bottom_end = idx == n_cells[a] - 1, idx == 0
+    n_t = len(t_axes)
 
     def series(state, mat, shear, dprime, dd):
         dtp = state.x.dtype
@@ -96,31 +88,36 @@ def make_cell_shear(scene: Scene, axis: str | None = None):
         cell = cells_of(x, origin, n_cells, h)
         cid = jnp.sum(cell * jnp.asarray(strides)[None, :], axis=1)
         y = x[:, a] - (jnp.asarray(origin[a], dtp) + (cell[:, a].astype(dtp) + 0.5) * h)  # height over the centre
-        g = 2.0 * _safe_sqrt(sum(dprime[:, b, a] * dprime[:, b, a] for b in t_axes))  # the rate across the bed
-        mu = law.mu(mat, shear, state.internal)
+        mu = law.mu(mat, shear, state.internal)  # Coussot's does not depend on the rate
         inv = vol / mu
-        traction = [vol * state.tau[:, b, a] for b in t_axes]
-        chans = jnp.stack([vol, vol * g, inv, inv * y, *traction], axis=1)
-        sums = jnp.zeros((n_all, chans.shape[1]), dtp).at[cid].add(chans)
+        # per tangential axis b, signed: the rate across the bed 2 d'_ba from the grid, and the traction tau_ba
+        g = [2.0 * dprime[:, b, a] for b in t_axes]
+        chans = [vol, inv, inv * y] + [vol * gb for gb in g] + [vol * state.tau[:, b, a] for b in t_axes]
+        sums = jnp.zeros((n_all, len(chans)), dtp).at[cid].add(jnp.stack(chans, axis=1))
         if axis is not None:
             sums = jax.lax.psum(sums, axis)
         v = sums[:, 0]
-        mean = sums[:, 4:] / jnp.where(v > 0.0, v, 1.0)[:, None]
-        m = _safe_sqrt(jnp.sum(mean * mean, axis=1)).reshape(tuple(n_cells))
-        # d|tau|/dy [Pa/m], centred; a row on a no-slip face (first: the face below it, last: above) takes the
-        # gradient between its two neighbours inward (behind the wall the cells are empty, not a free surface)
-        up, dn = jnp.roll(m, -1, axis=a), jnp.roll(m, 1, axis=a)
-        grad = (up - dn) / (2.0 * h)
-        grad = jnp.where(jnp.asarray(first), (jnp.roll(m, -2, axis=a) - up) / h, grad)
-        grad = jnp.where(jnp.asarray(last), (dn - jnp.roll(m, 2, axis=a)) / h, grad).reshape(-1)
+        has = (v > 0.0).reshape(tuple(n_cells))
+        has_up = jnp.roll(has, -1, axis=a) & jnp.asarray(~top_end)
+        has_dn = jnp.roll(has, 1, axis=a) & jnp.asarray(~bottom_end)
         s = sums[cid]
-        G = grad[cid]
-        tau_bar = (s[:, 1] - G * s[:, 3]) / jnp.where(s[:, 2] > 0.0, s[:, 2], 1.0)
-        rate = jnp.maximum(tau_bar + G * y, 0.0) / mu
-        ok = g > 0.0
-        k = jnp.where(ok, rate / jnp.where(ok, g, 1.0), 1.0)
-        dd = dd + (k * k - 1.0) * 0.5 * g * g  # the two components across the bed: 2 d'_ba^2 summed over b = g^2 / 2
-        factor = 1.0 + (k - 1.0)[:, None, None] * jnp.asarray(across, dtp)[None]
-        return shear_rate(dd, scene.shear_measure), dprime * factor, dd
+        dd_new = dd
+        dprime_new = dprime
+        for k, b in enumerate(t_axes):
+            mean = (sums[:, 3 + n_t + k] / jnp.where(v > 0.0, v, 1.0)).reshape(tuple(n_cells))
+            up, dn = jnp.roll(mean, -1, axis=a), jnp.roll(mean, 1, axis=a)
+            # d tau_ba / dy [Pa/m]: centred between two neighbours with material, else one-sided toward the one
+            # there is (a free surface, or a no-slip face: the cells behind a box wall hold nothing), else 0
+            grad = jnp.where(
+                has_up & has_dn,
+                (up - dn) / (2.0 * h),
+                jnp.where(has_up, (up - mean) / h, jnp.where(has_dn, (mean - dn) / h, 0.0)),
+            ).reshape(-1)[cid]
+            tau_bar = (s[:, 3 + k] - grad * s[:, 2]) / jnp.where(s[:, 1] > 0.0, s[:, 1], 1.0)
+            rate = (tau_bar + grad * y) / mu
+            half = 0.5 * rate
+            dd_new = dd_new + 2.0 * (half * half - dprime[:, b, a] * dprime[:, b, a])
+            dprime_new = dprime_new.at[:, b, a].set(half).at[:, a, b].set(half)
+        return shear_rate(dd_new, scene.shear_measure), dprime_new, dd_new
 
     return series

@@ -18,7 +18,8 @@ last ``T_AVG`` of ``T_END``) against the film's mean speed at the same times, an
 "flowing state" (``*_steady``).  One JSON line per run.
 
     .venv/bin/python benchmarks/accuracy/coussot_incline.py incompressible 2 5,10,20
-    .venv/bin/python benchmarks/accuracy/coussot_incline.py explicit 2,4 10 wall_yield=wall
+    .venv/bin/python benchmarks/accuracy/coussot_incline.py explicit 2,4 10 cell_shear=series
+    .venv/bin/python benchmarks/accuracy/coussot_incline.py profile 10 2 cell_shear=series   # lambda and u by layer
 """
 
 import json
@@ -107,12 +108,12 @@ def measure(r: float, cells: int, pressure: str, numerics: dict) -> dict:
     final, frames = run(s.scene, s.state, s.params)
     jax.block_until_ready(frames.v)
     cpu = time.process_time() - c0
-    keep = int(round(T_AVG / T_END * s.scene.n_frames))
+    times = (np.arange(s.scene.n_frames) + 1) * T_END / s.scene.n_frames
+    keep = int(np.sum(times >= T_END - T_AVG - 1e-9))  # the frames of the last T_AVG, both ends (as validate)
     vx = np.asarray(frames.v)[-keep:, :, 0]
     U_s = exact(theta)[0]
     mean = float(vx.mean())
     series = [round(float(v), 5) for v in np.asarray(frames.v)[:, :, 0].mean(axis=1)]
-    times = (np.arange(s.scene.n_frames) + 1) * T_END / s.scene.n_frames
     y, u, _, _ = film.film_profiles(s.params.material, H, theta, times)
     ref = film.mean_speed(y, u)
     U = float(ref[-keep:].mean())
@@ -143,7 +144,29 @@ def value(v: str):
         return v  # a choice, e.g. wall_yield=wall
 
 
+def profile(cells: int, r: float, numerics: dict) -> None:
+    """Per particle layer at T_END: height / h, the particles' mean lambda and speed, and the film's at that height
+    (400 layers), one line each."""
+    theta, _ = slope_for(r)
+    s = build(config(cells, theta, {"pressure": "incompressible", **numerics}))
+    final, _ = run(s.scene, s.state, s.params)
+    y, lam, vx = np.asarray(final.x)[:, 1], np.asarray(final.internal["lam"]), np.asarray(final.v)[:, 0]
+    yf, u, z, _ = film.film_profiles(s.params.material, H, theta, [T_END], n_layers=400)
+    yc = 0.5 * (yf[1:] + yf[:-1])
+    h = H / cells
+    for yy in np.unique(np.round(y / h, 3)):
+        m = np.round(y / h, 3) == yy
+        print(
+            f"y/h {yy:7.3f}  lambda {lam[m].mean():7.3f} film {np.interp(yy * h, yc, z['lam'][-1]):7.3f}  "
+            f"u {vx[m].mean():.5f} film {np.interp(yy * h, yf, u[-1]):.5f} m/s",
+            flush=True,
+        )
+
+
 if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "profile":  # profile CELLS R [key=value ...]
+        profile(int(sys.argv[2]), float(sys.argv[3]), {k: value(v) for k, v in (a.split("=", 1) for a in sys.argv[4:])})
+        sys.exit(0)
     pressures = sys.argv[1].split(",") if len(sys.argv) > 1 else ["explicit", "incompressible"]
     ratios = [float(x) for x in sys.argv[2].split(",")] if len(sys.argv) > 2 else [2.0, 4.0]
     cells = [int(x) for x in sys.argv[3].split(",")] if len(sys.argv) > 3 else [5, 10, 20]

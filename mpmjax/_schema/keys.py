@@ -293,7 +293,7 @@ _HEAD: dict[str, Key] = {
         "cell's mean rate the grid's, and the stress gradient measured from the neighbouring cells: a shear band "
         "can then end inside a cell. Acts on laws with internal variables (Coussot), whose particles differ at one "
         "rate; a no-op elsewhere. A Coussot film 5 cm deep at twice its flow curve's minimum stress: -15.5 / "
-        "+12.6 / -0.1 % in its mean speed at 5 / 10 / 20 cells across it with uniform, +2.3 / +3.9 / +0.1 % with "
+        "+12.5 / -0.1 % in its mean speed at 5 / 10 / 20 cells across it with uniform, +2.3 / +3.8 / +0.1 % with "
         "series; the lab dam break's runout +0.9 % at h = 1 cm (docs/coussot-film.md). Needs the gimp or linear shape, the standard "
         "shear measure and the full formulation.",
         choices=_cell_shear.MODES,
