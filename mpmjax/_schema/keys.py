@@ -294,7 +294,7 @@ _HEAD: dict[str, Key] = {
         "can then end inside a cell. Acts on laws with internal variables (Coussot), whose particles differ at one "
         "rate; a no-op elsewhere. A Coussot film 5 cm deep at twice its flow curve's minimum stress: -15.5 / "
         "+12.5 / -0.1 % in its mean speed at 5 / 10 / 20 cells across it with uniform, +2.3 / +3.8 / +0.1 % with "
-        "series; the lab dam break's runout +0.9 % at h = 1 cm (docs/coussot-film.md). Needs the gimp or linear shape, the standard "
+        "series; the lab dam break's runout +0.6 % at h = 1 cm (docs/coussot-film.md). Needs the gimp or linear shape, the standard "
         "shear measure and the full formulation.",
         choices=_cell_shear.MODES,
     ),
