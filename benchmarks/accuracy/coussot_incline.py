@@ -20,6 +20,7 @@ last ``T_AVG`` of ``T_END``) against the film's mean speed at the same times, an
     .venv/bin/python benchmarks/accuracy/coussot_incline.py incompressible 2 5,10,20
     .venv/bin/python benchmarks/accuracy/coussot_incline.py explicit 2,4 10 cell_shear=series
     .venv/bin/python benchmarks/accuracy/coussot_incline.py profile 10 2 cell_shear=series   # lambda and u by layer
+    .venv/bin/python benchmarks/accuracy/coussot_incline.py layers 2 50,100,200              # the film's own convergence
 """
 
 import json
@@ -163,7 +164,25 @@ def profile(cells: int, r: float, numerics: dict) -> None:
         )
 
 
+def layers(r: float, counts) -> None:
+    """The film's own convergence: its mean speed over the comparison's window (the frames at 5, 5.5, 6 s of 12)
+    and at 6 s, at each count of layers, one JSON line each."""
+    theta, _ = slope_for(r)
+    s = build(config(5, theta, {}))
+    times = (np.arange(12) + 1) * T_END / 12
+    for n in counts:
+        c0 = time.process_time()
+        y, u, _, steps = film.film_profiles(s.params.material, H, theta, times, n_layers=n)
+        ref = film.mean_speed(y, u)
+        rec = {"r": r, "n_layers": n, "U_window": float(ref[times >= T_END - T_AVG - 1e-9].mean()), "U_6s": float(ref[-1]),
+               "steps": steps, "cpu_s": round(time.process_time() - c0, 1), "date": time.strftime("%Y-%m-%d")}
+        print(json.dumps(rec), flush=True)
+
+
 if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "layers":  # layers R [COUNTS]
+        layers(float(sys.argv[2]), [int(x) for x in (sys.argv[3] if len(sys.argv) > 3 else "50,100,200").split(",")])
+        sys.exit(0)
     if len(sys.argv) > 1 and sys.argv[1] == "profile":  # profile CELLS R [key=value ...]
         profile(int(sys.argv[2]), float(sys.argv[3]), {k: value(v) for k, v in (a.split("=", 1) for a in sys.argv[4:])})
         sys.exit(0)

@@ -17,9 +17,9 @@ Numerics: the method of lines on ``n`` equal layers (velocity at the layer bound
 internal variables at their centres; the top node carries half a layer), diffrax's Kvaerno5 (L-stable:
 the capped viscosity makes the layer stiff, mu_max / (rho dy^2) about 1e8 1/s) with an adaptive step;
 float64, inside ``jax.enable_x64``.  Measured: a Newtonian layer's steady speed rho g sin(theta) H^2 / (3 mu)
-to 2.5e-5 at 100 layers (tests/test_film.py); the lab's Coussot layer at twice its flow curve's minimum stress
-(docs/coussot-film.md), whose band edge is resolved to a layer here too, moves its mean speed at 6 s by 2.6 %
-from 50 to 100 layers and by 0.06 % from 100 to 200 (a two-point estimate of the error, not a bound).
+to 2.5e-5 at 100 layers (tests/test_film.py); the lab's Coussot layer at twice its flow curve's minimum stress,
+whose band edge is resolved to a layer here too, converges unevenly: its mean speed over 5-6 s moves by -1.8 %
+from 50 to 100 layers, +0.06 % to 200 and +0.18 % to 400 (docs/coussot-film.md).
 """
 
 from __future__ import annotations

@@ -1013,16 +1013,16 @@ CASES: dict[str, Case] = {
             "(periodic) whose bed stress is 2 tau_c (tau_c = 15.7 Pa, the flow curve's minimum: the lab deposit "
             "stops near it), 20 cells across the depth, 6 s (the mean speed over the last 1 s)",
             "the same layer solved across its depth in one dimension (mpmjax.studies.film: 100 layers, diffrax "
-            "Kvaerno5; 0.06 % from 200 layers), its mean speed at the run's frame times: the band that shears at "
+            "Kvaerno5; +0.18 % to 400 layers), its mean speed at the run's frame times: the band that shears at "
             "the bed depends on the start (the flow curve is not monotone), so the reference is the transient",
             0.05,
-            "5 %: the reference moves by 0.06 % from 100 to 200 layers, the grid pressure reaches it to 0.1 % at 20 "
-            "cells, and a band misplaced by one cell moves the speed by about 13 % at 10 cells (-15.5 / +12.5 % at 5 "
-            "/ 10 cells with one rate per cell: docs/coussot-film.md); the explicit pressure at the lab's kappa "
-            "misses by 21 %",
+            "5 %: the reference is good to a few tenths of a per cent (+0.06 / +0.18 % from 100 to 200 / 400 layers), "
+            "the grid pressure reaches it to 0.1 % at 20 cells, and the band's edge rounded to a cell boundary moves "
+            "the speed by 12.5 % at 10 cells (-15.5 % at 5, with one rate per cell: docs/coussot-film.md); the "
+            "explicit pressure at the lab's kappa misses by 21 %",
             _film_cfgs,
             _film_run,
-            "loop CPU measured on 2 shared cores (explicit / incompressible), float32, 6 s, 2026-12-07: 6.0 s / 3.1 s (32 064 / "
+            "loop CPU measured on 2 shared cores (explicit / incompressible), float32, 6 s, 2026-12-07: 6.0-7.1 s / 2.7-3.6 s (32 064 / "
             "12 852 steps)",
         ),
     )
