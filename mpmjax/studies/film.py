@@ -4,9 +4,9 @@
 A uniform layer of depth H on a plane at angle theta, started from rest, shears in planes parallel to
 the bed, so u(y, t) and the law's internal variables z(y, t) (y the height over the bed) obey
 
-    rho u_t = tau_y + rho g sin(theta),   tau = mu(|u_y|, z) u_y,   z_t = law.rate(|u_y|, z),
+    rho du/dt = d tau/dy + rho g sin(theta),   tau = mu(|du/dy|, z) du/dy,   dz/dt = law.rate(|du/dy|, z),
 
-with u = 0 at the bed and tau = 0 at the free surface; the shear rate |u_y| is the law's standard
+with u = 0 at the bed and tau = 0 at the free surface; the shear rate |du/dy| is the law's standard
 measure for simple shear.  A law with internal variables (Coussot's structure lambda) carries its
 history at every height: where its steady flow curve is not monotone (Coussot with n > 1) a layer's
 steady state depends on how it started, so the reference is this transient, not the steady flow curve
