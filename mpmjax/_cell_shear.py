@@ -42,16 +42,9 @@ import numpy as np
 
 from ._constitutive import shear_rate
 from ._scene import Scene
-from ._wall_yield import _walls, cell_grid, cells_of
-from ._wall_yield import applies as _one_rate_per_cell
+from ._wall_yield import _walls, applies, cell_grid, cells_of
 
 MODES = ("uniform", "series")
-
-
-def applies(shape: str, shear_measure: str, formulation: str) -> bool:
-    """Whether ``series`` can act: one strain rate per cell (the linear and GIMP shapes), a rate in 1/s
-    and the full formulation, as ``numerics.wall_yield = "wall"``."""
-    return _one_rate_per_cell(shape, shear_measure, formulation)
 
 
 def bed_axis(scene: Scene) -> int | None:

@@ -35,20 +35,17 @@ import jax
 import coussot_film  # this directory's script: the exact steady layer
 from mpmjax import build
 from mpmjax._simulate import run
-from mpmjax._schema import validate
-from mpmjax.studies import film
+from mpmjax import rheometer
+from mpmjax.studies import film, validate
 
 MATERIAL = "dambreak-lab"
-H = 0.05  # m: the lab deposit's thickness, about
+H = validate.FILM_H  # m: the lab deposit's thickness, about
 T_END, T_AVG = 6.0, 1.0
 
 
 def slope_for(r: float) -> tuple[float, float]:
-    """(theta [deg], tau_c [Pa]) with the bed stress rho g H sin(theta) = r tau_c."""
-    m = coussot_film.MATERIALS[MATERIAL]
-    gd, tau = coussot_film.flow_curve(m)
-    tau_c = float(tau[coussot_film.extrema(tau)[1]])
-    return math.degrees(math.asin(r * tau_c / (m["rho"] * coussot_film.G * H))), tau_c
+    """(theta [deg], tau_c [Pa]) with the bed stress rho g H sin(theta) = r tau_c: validate's layer."""
+    return validate.film_slope_deg(r), float(rheometer.critical_point(rheometer.make_params())[1])
 
 
 def exact(theta: float) -> tuple[float, float]:
@@ -62,49 +59,18 @@ def exact(theta: float) -> tuple[float, float]:
     return float(np.sum(0.5 * (u[1:] + u[:-1]) * np.diff(y)) / H), float(u[-1])
 
 
-def config(cells: int, theta: float, numerics: dict) -> dict:
-    m = coussot_film.MATERIALS[MATERIAL]
-    h = H / cells
-    raw = {
-        "domain.dim": 2,
-        "domain.lo_m": [0.0, 0.0],
-        "domain.hi_m": [4 * h, H + 5 * h],
-        "domain.cell_size_m": h,
-        "boundary.x_lo": "periodic",
-        "boundary.x_hi": "periodic",
-        "boundary.y_lo": "noslip",
-        "boundary.y_hi": "slip",
-        "numerics.ppc": 3,
-        "numerics.dtype": "float64",
-        "time.t_end_s": T_END,
-        "time.n_frames": 12,
-        "material.model": "coussot",
-        "material.density_kg_m3": m["rho"],
-        "material.bulk_modulus_pa": 2e5,
-        "material.mu0_pa_s": m["mu0"],
-        "material.alpha": m["alpha"],
-        "material.T_s": m["T"],
-        "material.n": m["n"],
-        "material.mu_max_pa_s": m["mu_max"],
-        "material.lambda0": 1.5,
-        "gravity.g_m_s2": coussot_film.G,
-        "gravity.slope_deg": theta,
-        "bodies": [{"lo_m": [0.0, 0.0], "hi_m": [4 * h, H]}],
-    }
-    raw.update({f"numerics.{k}": v for k, v in numerics.items()})
-    nested: dict = {}
-    for k, v in raw.items():
-        if "." in k:
-            sec, key = k.split(".", 1)
-            nested.setdefault(sec, {})[key] = v
-        else:
-            nested[k] = v
-    return validate(nested)
+def config(cells: int, r: float, numerics: dict) -> dict:
+    """validate's coussot-film layer (``validate.film_config``) at ``r`` tau_c, 12 frames to T_END, in float64 and
+    at kappa = 200 kPa (rho g H / kappa 0.45 %: the explicit pressure near its incompressible limit);
+    ``numerics``: numerics keys without their section."""
+    base = {"numerics.dtype": "float64", "material.bulk_modulus_pa": 2e5}
+    base.update({f"numerics.{k}": v for k, v in numerics.items()})
+    return validate.film_config(cells, T_END, 12, base, r=r)
 
 
 def measure(r: float, cells: int, pressure: str, numerics: dict) -> dict:
     theta, tau_c = slope_for(r)
-    s = build(config(cells, theta, {"pressure": pressure, **numerics}))
+    s = build(config(cells, r, {"pressure": pressure, **numerics}))
     c0 = time.process_time()
     final, frames = run(s.scene, s.state, s.params)
     jax.block_until_ready(frames.v)
@@ -149,7 +115,7 @@ def profile(cells: int, r: float, numerics: dict) -> None:
     """Per particle layer at T_END: height / h, the particles' mean lambda and speed, and the film's at that height
     (400 layers), one line each."""
     theta, _ = slope_for(r)
-    s = build(config(cells, theta, {"pressure": "incompressible", **numerics}))
+    s = build(config(cells, r, {"pressure": "incompressible", **numerics}))
     final, _ = run(s.scene, s.state, s.params)
     y, lam, vx = np.asarray(final.x)[:, 1], np.asarray(final.internal["lam"]), np.asarray(final.v)[:, 0]
     yf, u, z, _ = film.film_profiles(s.params.material, H, theta, [T_END], n_layers=400)
@@ -168,7 +134,7 @@ def layers(r: float, counts) -> None:
     """The film's own convergence: its mean speed over the comparison's window (the frames at 5, 5.5, 6 s of 12)
     and at 6 s, at each count of layers, one JSON line each."""
     theta, _ = slope_for(r)
-    s = build(config(5, theta, {}))
+    s = build(config(5, r, {}))
     times = (np.arange(12) + 1) * T_END / 12
     for n in counts:
         c0 = time.process_time()

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import _bodies, _cell_shear, _dem, _quadrature, _release, _rheology, _shapes, _wall_yield
+from .. import _bodies, _dem, _quadrature, _release, _rheology, _shapes, _wall_yield
 from .._boundary import inflow_layout
 from .._scene import WALL_KINDS
 from .keys import _REQ, BODY_KEYS, BODY_TYPES, Key, SceneError
@@ -378,51 +378,40 @@ def _validate_material(flat: dict, out: dict) -> None:
             )
 
 
-def _check_cell_shear(out: dict):
-    """numerics.cell_shear = "series" needs one strain rate per cell and a rate in 1/s (``_cell_shear.applies``):
-    refused otherwise, naming the key that conflicts (the default, uniform, acts everywhere)."""
+def _one_rate_conflict(out: dict) -> str | None:
+    """Why a cell's particles do not share one strain rate in 1/s here (the key and value that conflict, and what is
+    allowed), or None where they do (``_wall_yield.applies``): the ground of both ``numerics.wall_yield = "wall"``
+    and ``numerics.cell_shear = "series"``."""
     measure = out.get("material.shear_measure", "standard")
-    if out["numerics.cell_shear"] != "series" or _cell_shear.applies(out["numerics.shape"], measure, out["model.formulation"]):
-        return
+    if _wall_yield.applies(out["numerics.shape"], measure, out["model.formulation"]):
+        return None
     if out["model.formulation"] == "depth-averaged":
-        why = f"model.formulation = {_show(out['model.formulation'])} (a column has no cells across its depth)"
-    elif out["numerics.shape"] not in _wall_yield.SHAPES:
-        why = (
-            f"numerics.shape = {_show(out['numerics.shape'])} (the series assumes one strain rate per cell); allowed: "
+        return f"model.formulation = {_show(out['model.formulation'])} (a column has no cell rows across its depth)"
+    if out["numerics.shape"] not in _wall_yield.SHAPES:
+        return (
+            f"numerics.shape = {_show(out['numerics.shape'])} (it needs one strain rate per cell row); allowed: "
             f"numerics.shape = {' or '.join(repr(x) for x in _wall_yield.SHAPES)}"
         )
-    else:
-        why = f"material.shear_measure = {_show(measure)} (needs a rate in 1/s); allowed: material.shear_measure = 'standard'"
-    raise SceneError(f"numerics.cell_shear = 'series' is invalid with {why}, or numerics.cell_shear = 'uniform'")
+    return f"material.shear_measure = {_show(measure)} (it needs a shear rate in 1/s); allowed: material.shear_measure = 'standard'"
+
+
+def _check_cell_shear(out: dict):
+    """numerics.cell_shear = "series" where a cell has no one rate (``_one_rate_conflict``): refused, naming the key
+    that conflicts (the default, uniform, acts everywhere)."""
+    why = _one_rate_conflict(out) if out["numerics.cell_shear"] == "series" else None
+    if why is not None:
+        raise SceneError(f"numerics.cell_shear = 'series' is invalid with {why}, or numerics.cell_shear = 'uniform'")
 
 
 def _check_wall_yield(out: dict, given: dict):
-    """numerics.wall_yield = "wall" where it cannot act (``_wall_yield.applies``: the shape, the shear measure,
-    the formulation): the default falls back to "cell"; a "wall" the scene sets itself is refused, naming the
-    key that conflicts.  ``given``: the keys the scene set."""
-    measure = out.get("material.shear_measure", "standard")
-    if out["numerics.wall_yield"] != "wall" or _wall_yield.applies(
-        out["numerics.shape"], measure, out["model.formulation"]
-    ):
+    """numerics.wall_yield = "wall" where the wall row has no one rate (``_one_rate_conflict``): the default falls
+    back to "cell"; a "wall" the scene sets itself is refused, naming the key that conflicts.  ``given``: the keys
+    the scene set."""
+    why = _one_rate_conflict(out) if out["numerics.wall_yield"] == "wall" else None
+    if why is None:
         return
-    if out["model.formulation"] == "depth-averaged":
-        why = (
-            f"model.formulation = {_show(out['model.formulation'])} (its bed is a closure, with no cell row); "
-            "allowed: numerics.wall_yield = 'cell'"
-        )
-    elif out["numerics.shape"] not in _wall_yield.SHAPES:
-        why = (
-            f"numerics.shape = {_show(out['numerics.shape'])} (the wall row's flow rule assumes one strain rate per "
-            f"cell row); allowed: numerics.shape = {' or '.join(repr(x) for x in _wall_yield.SHAPES)}, or "
-            "numerics.wall_yield = 'cell'"
-        )
-    else:
-        why = (
-            f"material.shear_measure = {_show(measure)} (the wall row's flow rule needs a shear rate in 1/s); "
-            "allowed: material.shear_measure = 'standard', or numerics.wall_yield = 'cell'"
-        )
     if "numerics.wall_yield" in given:
-        raise SceneError(f"numerics.wall_yield = 'wall' is invalid with {why}")
+        raise SceneError(f"numerics.wall_yield = 'wall' is invalid with {why}, or numerics.wall_yield = 'cell'")
     out["numerics.wall_yield"] = "cell"
 
 
