@@ -20,6 +20,19 @@ The closure (one for every law; nothing here re-implements a law):
   the yield part is applied as a capped friction instead (``_shallow``), which holds a layer at
   rest while rho g h |grad(z_b + h)| <= tau_y, exactly.
 
+With ``numerics.depth_layers`` = K > 1 (a law with internal variables, Coussot) each column carries its
+internal variables in K layers across its depth instead of one value (Hewitt & Balmforth 2013's thixotropic
+lubrication model, layered): the shear stress of a uniform shallow layer falls linearly from tau_b at the bed to
+0 at the surface, tau(zeta) = tau_b (1 - zeta) (zeta = height / h), each layer shears at its own rate
+tau / mu_k with its own viscosity mu_k = mu_law(lambda_k), and the mean speed is
+U = h tau_b F, F = sum_k w_k / mu_k, w_k = int over layer k of (1 - zeta)^2 dzeta ("fluidity", 1/(Pa s)).
+So tau_b = c U with c = 1 / (h F), exact for a quasi-steady layer whose viscosity depends on its structure
+only (Coussot's), and each layer's structure advances at its own rate tau_b (1 - zeta_k) / mu_k: a band
+that breaks down at the bed under a plug that ages is the layer's own outcome, as across the depth of a
+film (docs/depth-layers.md).  One layer of the uniform profile is the
+Newtonian closure above (c = 3 mu / h).  The layers are graded towards the bed (edges (k / K)^2), where the
+band forms.
+
 ``closure`` returns tau_b(U) split for the step's implicit friction, tau_b = tau_0 + c U at the
 current U: the yield part tau_0 (what a layer at rest must exceed; plus a Coulomb part
 mu_c sigma_n with ``terrain.type = "coulomb"`` or ``"voellmy"``, whose drag ``_shallow`` adds to c) and the secant c = (tau_b - tau_0) / U [Pa s/m],
@@ -29,6 +42,7 @@ so the step can apply the viscous part implicitly (any c, any dt) and cap the yi
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 # speeds below this [m/s] are evaluated at it (the secant (tau_b - tau_0) / U and the shear rate stay
 # finite; a node this slow is stopped or dominated by the yield part)
@@ -36,6 +50,39 @@ U_EPS = 1e-6
 # Newton iterations for the plug-flow cubic, from an upper bound of the root (module docstring):
 # monotone convergence; 8 reach float64 round-off over tau_v / tau_y in [1e-12, 1e6]
 NEWTON_ITERATIONS = 8
+
+
+# the layers' edges across the depth, zeta_k = (k / K)^LAYER_GRADING: thinner at the bed, where a
+# thixotropic layer's band forms (docs/depth-layers.md)
+LAYER_GRADING = 2.0
+
+
+def layer_edges(n_layers: int) -> np.ndarray:
+    """The K + 1 edges zeta_k in [0, 1] (bed to surface) of ``n_layers`` layers across the depth."""
+    return (np.arange(n_layers + 1) / n_layers) ** LAYER_GRADING
+
+
+def layer_weights(n_layers: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(w_k, s_k, t_k) of the K layers: w_k = int (1 - zeta)^2 dzeta over the layer (sum 1/3), s_k = 1 - zeta
+    at its centre (the stress there over tau_b) and t_k its thickness (sum 1)."""
+    e = layer_edges(n_layers)
+    return ((1.0 - e[:-1]) ** 3 - (1.0 - e[1:]) ** 3) / 3.0, 1.0 - 0.5 * (e[:-1] + e[1:]), np.diff(e)
+
+
+def layered(law, params, speed, depth_n, internal):
+    """The layered column (module docstring): (F [1/(Pa s)], rates [1/s] per layer) of columns at bed speed
+    ``speed`` [m/s] and bed-normal depth ``depth_n`` [m] whose internal variables ``internal`` carry the
+    layers on their last axis (K).  The law's viscosity is taken at each layer's rate in a Newtonian profile
+    of the same U (a guess; Coussot's viscosity does not depend on the rate, so for it the result is exact);
+    tau_b = U / (h F) and the layers' rates are tau_b s_k / mu_k."""
+    lead = next(iter(internal.values())).shape
+    w, s, _ = (jnp.asarray(a).reshape((1,) * (len(lead) - 1) + (-1,)) for a in layer_weights(lead[-1]))
+    u = jnp.maximum(speed, U_EPS)[..., None]
+    h = depth_n[..., None]
+    mu = law.mu(params, 3.0 * u / h * s, internal)
+    F = jnp.sum(w / mu, axis=-1)
+    tau_b = u[..., 0] / (depth_n * F)
+    return F, tau_b[..., None] * s / mu
 
 
 def has_yield(law) -> bool:
@@ -71,12 +118,20 @@ def shear_rate(speed, depth_n):
     return 3.0 * jnp.maximum(speed, U_EPS) / depth_n
 
 
-def closure(law, params, speed, depth_n, internal, normal_stress=None, friction=None):
+def closure(law, params, speed, depth_n, internal, normal_stress=None, friction=None, fluidity=None):
     """(tau_0 [Pa], c [Pa s/m], mu [Pa s]) of the basal shear at bed speed ``speed`` [m/s] and
     bed-normal depth ``depth_n`` [m] (> 0) with the law's internal variables ``internal``:
     tau_b = tau_0 + c U (module docstring); mu: the law's effective viscosity at gamma_b (without
     its yield part), for the outputs.  ``friction``: a Coulomb coefficient mu_c (traced; None: no
-    Coulomb part), adding mu_c ``normal_stress`` [Pa] to tau_0."""
+    Coulomb part), adding mu_c ``normal_stress`` [Pa] to tau_0.  ``fluidity``: a layered column's F
+    (:func:`layered`; then ``internal`` is not used): c = 1 / (h F), mu = c h / 3 (the Newtonian
+    viscosity of the same basal shear)."""
+    if fluidity is not None:
+        c = 1.0 / (depth_n * fluidity)
+        tau_0 = jnp.zeros_like(c)
+        if friction is not None:
+            tau_0 = tau_0 + friction * normal_stress
+        return tau_0, c, c * depth_n / 3.0
     u = jnp.maximum(speed, U_EPS)
     rate = shear_rate(u, depth_n)
     yield_ = has_yield(law)

@@ -538,6 +538,8 @@ def build(cfg: dict) -> Setup:
         formulation=cfg["model.formulation"],
         bed_curvature=cfg["model.bed_curvature"],
         split_levels=int(cfg["numerics.split_levels"]) if shallow else 0,
+        # layers across the depth carry internal variables: none to carry, one "layer"
+        depth_layers=int(cfg["numerics.depth_layers"]) if shallow and rheology.internals else 1,
         split_min_volume=float(split_min),
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

@@ -12,7 +12,9 @@ HDF5 schema of ``result.h5`` (see docs/output.md):
   ``/particles/mass_kg`` (n,) [kg; 2D: kg per m depth].
 * ``/frames/t_s`` (F,), ``/frames/x_m`` (F, n, dim), ``/frames/v_m_s`` (F, n, dim),
   ``/frames/J`` (F, n), ``/frames/mu_pa_s`` (F, n), ``/frames/active`` (F, n) and one
-  dataset per rheology internal field (``/frames/lambda`` for Coussot); with column splitting
+  dataset per rheology internal field (``/frames/lambda`` for Coussot; with layers across a column's
+  depth, ``numerics.depth_layers`` = K > 1, its thickness-weighted mean over the depth, and the layers
+  themselves in ``/frames/lambda_layers`` (F, n, K), bed first); with column splitting
   (``numerics.split_levels`` > 0) also ``/frames/vol0_m3`` (F, n), the volumes that change as
   columns split (``frame_volumes`` reads either).  Frame 0 is the
   initial state.  Datasets grow by one frame at a time and the file is flushed after
@@ -41,6 +43,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from . import _basal
 from ._scene import State
 
 UNITS = {
@@ -99,6 +102,10 @@ def params_dict(params) -> dict:
     d = {f"material.{k}": _finite_or_none(float(np.asarray(v))) for k, v in mat._asdict().items()}
     d["gravity_m_s2"] = np.asarray(params.gravity).tolist()
     return d
+
+
+# ``/frames`` dataset of an internal field's layers across the depth: its name plus this
+LAYERS_SUFFIX = "_layers"
 
 
 def internal_datasets(rheology) -> dict[str, tuple[str, str]]:
@@ -177,8 +184,10 @@ class FrameWriter:
         if setup.scene.split_levels > 0:  # columns split: their volumes change (_split)
             self.fields["vol0_m3"] = (n,)
         self.internal = {k: lab for k, (lab, _) in internal_datasets(setup.scene.rheology).items()}
-        for k in setup.state.internal:
+        for k, arr in setup.state.internal.items():
             self.fields[self.internal[k]] = (n,)
+            if np.ndim(arr) == 2:  # layers across the depth (``_basal.layered``): their mean, and the layers
+                self.fields[self.internal[k] + LAYERS_SUFFIX] = (n, np.shape(arr)[1])
 
     def _reopen(self, setup, keep_frames: int):
         self.f = h5py.File(self.path, "r+")
@@ -202,6 +211,10 @@ class FrameWriter:
         vals = {"x_m": state.x, "v_m_s": state.v, "J": state.J, "mu_pa_s": state.mu, "active": state.active,
                 "vol0_m3": state.vol0}
         for k, arr in state.internal.items():
+            if np.ndim(arr) == 2:
+                arr = np.asarray(arr)
+                vals[self.internal[k] + LAYERS_SUFFIX] = arr
+                arr = arr @ _basal.layer_weights(arr.shape[1])[2]  # the mean over the depth
             vals[self.internal[k]] = arr
         for name in self.fields:
             ds = self.g[name]

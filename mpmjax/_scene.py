@@ -196,6 +196,8 @@ class Scene:
       split_levels, split_min_volume: depth-averaged only: columns sparser than the grid are split
         (``_split``) down to ``split_min_volume`` (a column's volume: m^3 in 3D, m^2 per metre in 2D);
         0 levels: off.
+      depth_layers: depth-averaged only: layers across a column's depth that carry the law's internal
+        variables (1: one value per column; ``_basal.layered``).
     """
 
     dim: int
@@ -237,6 +239,7 @@ class Scene:
     cell_shear: str = "uniform"
     bed_curvature: str = "centrifugal"
     split_levels: int = 0
+    depth_layers: int = 1
     split_min_volume: float = 0.0
 
     @property
@@ -360,6 +363,8 @@ def _fresh_material(scene: Scene, params: Params, n: int, dt):
     internal = scene.rheology.init_internal(params.material, n)
     internal = {k: jnp.asarray(a, dt) for k, a in internal.items()}
     mu0 = scene.rheology.viscosity(params.material, jnp.zeros((n,), dt), internal, 0.0, False)[0]
+    if scene.depth_layers > 1:  # the same value in every layer across the depth (``_basal.layered``)
+        internal = {k: jnp.broadcast_to(a[:, None], (n, scene.depth_layers)) for k, a in internal.items()}
     return internal, mu0
 
 

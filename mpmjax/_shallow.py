@@ -42,7 +42,10 @@ ghost layers and box faces as in the full step).  One step:
 5. G2P (APIC): u_p, C_p; X_p += dt u_p; particles behind a box wall are put back on it;
 6. the law's internal variables advanced at the basal shear rate 3 U_p / h_n,p of the particle
    (``Law.viscosity``: for Coussot the exact exponential lambda update); ``state.mu``: the law's
-   viscosity there;
+   viscosity there.  With ``numerics.depth_layers`` = K > 1 the internal variables are (n, K), one
+   value per layer across the depth, each advanced at its layer's own rate, and the nodes' closure
+   takes the columns' mass-weighted fluidity F (scattered in step 3 instead of the variables) rather
+   than the law at their mean (``_basal``, "layered");
 7. for the outputs, the stored vertical coordinate is the column's mid-depth z_b(X) + H(X) / 2
    and the vertical velocity u . grad z_b (the bed-following velocity), so result files, plan-view
    maps and hazard maps read a depth-averaged state as they read a 3-D one; J stays 1 and the
@@ -224,6 +227,7 @@ def make_shallow_step(scene: Scene):
     d_factor = _APIC_D.get(scene.shape)
     m_empty = EMPTY_NODE_FRACTION * h**k if np.dtype(scene.dtype) == np.float32 else 0.0
     names = law.internal_fields
+    layered = scene.depth_layers > 1  # the internal variables in layers across the depth (``_basal.layered``)
     # column splitting (``_split``): the children stay inside the box's walls and the grid's safe region
     split_lo, split_hi = safe_lo.copy(), safe_hi.copy()
     for ax, point, nrm, _, _ in walls:
@@ -272,7 +276,12 @@ def make_shallow_step(scene: Scene):
         contrib = m[:, None, None] * st.w[..., None] * (u[:, None, :] + affine + dt * a[:, None, :])
         contrib = contrib + dt * push[:, None, None] * st.dw
         mom = jnp.zeros((n_nodes, k), dtp).at[st.idx.reshape(-1)].add(contrib.reshape(-1, k))
-        chans = [m[:, None]] + [(m * state.internal[nm])[:, None] for nm in names]
+        if layered:
+            # the columns' fluidity F (``_basal.layered``), not the layers themselves: F = 1 / (3 mu), mu the
+            # Newtonian viscosity of the same basal shear that step 6 stored from the updated layers
+            chans = [m[:, None], (m / (3.0 * state.mu))[:, None]]
+        else:
+            chans = [m[:, None]] + [(m * state.internal[nm])[:, None] for nm in names]
         normal_g = curved and frictional  # the nodes' bed-normal gravity from the particles' (Coulomb part)
         if normal_g:
             chans.append((m * g_v)[:, None])
@@ -281,7 +290,10 @@ def make_shallow_step(scene: Scene):
         has = mass > m_empty * rho
         inv_m = jnp.where(has, 1.0 / jnp.where(has, mass, 1.0), 0.0)
         u_star = mom * inv_m[:, None]
-        internal_n = {nm: grid[:, 1 + i] * inv_m for i, nm in enumerate(names)}
+        if layered:
+            internal_n, fluidity_n = None, grid[:, 1] * inv_m
+        else:
+            internal_n, fluidity_n = {nm: grid[:, 1 + i] * inv_m for i, nm in enumerate(names)}, None
         g_vn = grid[:, -1] * inv_m if normal_g else g_n
 
         # 4. basal shear on the nodes: capped yield part, implicit viscous part
@@ -294,7 +306,7 @@ def make_shallow_step(scene: Scene):
         sigma_n = rho * g_vn * cos_n * h_n  # bed-normal stress of the column [Pa] (Coulomb part)
         basal = _basal_params(params) if frictional else None
         mu_c = None if basal is None else basal.friction
-        tau_0, c_bed, _ = _basal.closure(law, mat, bed_speed, h_n, internal_n, sigma_n, mu_c)
+        tau_0, c_bed, _ = _basal.closure(law, mat, bed_speed, h_n, internal_n, sigma_n, mu_c, fluidity_n)
         if voellmy:  # Voellmy's drag rho g U^2 / xi = c U, c = rho g U / xi (implicit like the rest)
             c_bed = c_bed + rho * jnp.sqrt(jnp.sum(params.gravity * params.gravity)) * bed_speed / basal.turbulence
         c_plan = c_bed * jnp.where(speed > 0, bed_speed / jnp.where(speed > 0, speed, 1.0), 1.0)
@@ -328,9 +340,15 @@ def make_shallow_step(scene: Scene):
         sp = _safe_norm(u_new)
         su = jnp.sum(u_new * grad_zb, axis=1)
         U_p = _safe_norm(jnp.stack([sp, su], axis=1))
-        rate = _basal.shear_rate(U_p, hn_p)
-        _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate)
-        _, _, mu = _basal.closure(law, mat, U_p, hn_p, internal)
+        if layered:  # every layer at its own rate (``_basal.layered``)
+            _, rate = _basal.layered(law, mat, U_p, hn_p, state.internal)
+            _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate[:, None])
+            F_new, _ = _basal.layered(law, mat, U_p, hn_p, internal)
+            _, _, mu = _basal.closure(law, mat, U_p, hn_p, None, fluidity=F_new)
+        else:
+            rate = _basal.shear_rate(U_p, hn_p)
+            _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate)
+            _, _, mu = _basal.closure(law, mat, U_p, hn_p, internal)
 
         # 7. the stored 3-D position and velocity; losses
         inside = jnp.all((X_new >= safe_lo[None, :]) & (X_new <= safe_hi[None, :]), axis=1)

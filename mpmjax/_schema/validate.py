@@ -734,6 +734,15 @@ def _validate_formulation(out: dict, dim: int, given: dict):
                     "model.formulation = 'depth-averaged'"
                 )
             out["numerics.split_levels"] = 0  # the depth-averaged default: not the full model's
+        if out["numerics.depth_layers"] != 1:
+            if "numerics.depth_layers" in given:
+                raise SceneError(
+                    f"numerics.depth_layers = {_show(out['numerics.depth_layers'])} is invalid with "
+                    "model.formulation = 'full': layers across a column's depth are the depth-averaged formulation's "
+                    "(the full model resolves the depth itself); allowed: 1 or unset, or model.formulation = "
+                    "'depth-averaged'"
+                )
+            out["numerics.depth_layers"] = 1  # the depth-averaged default: not the full model's
         if out["model.bed_curvature"] != "centrifugal":
             raise SceneError(
                 f"model.bed_curvature = {_show(out['model.bed_curvature'])} is invalid with model.formulation = "
