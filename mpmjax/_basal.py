@@ -70,19 +70,25 @@ def layer_weights(n_layers: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def layered(law, params, speed, depth_n, internal):
-    """The layered column (module docstring): (F [1/(Pa s)], rates [1/s] per layer) of columns at bed speed
-    ``speed`` [m/s] and bed-normal depth ``depth_n`` [m] whose internal variables ``internal`` carry the
-    layers on their last axis (K).  The law's viscosity is taken at each layer's rate in a Newtonian profile
-    of the same U (a guess; Coussot's viscosity does not depend on the rate, so for it the result is exact);
-    tau_b = U / (h F) and the layers' rates are tau_b s_k / mu_k."""
+    """The layered column (module docstring) at bed speed ``speed`` [m/s] and bed-normal depth ``depth_n`` [m],
+    its internal variables ``internal`` carrying the K layers on their last axis: (mu [Pa s] per layer, F
+    [1/(Pa s)]).  The law's viscosity is taken at each layer's rate in a Newtonian profile of the same U (a
+    guess; Coussot's viscosity does not depend on the rate, so for it the result is exact).  The basal shear
+    is tau_b = U / (h F) (:func:`closure` with ``fluidity``) and the layers' rates :func:`layer_rates`."""
     lead = next(iter(internal.values())).shape
-    w, s, _ = (jnp.asarray(a).reshape((1,) * (len(lead) - 1) + (-1,)) for a in layer_weights(lead[-1]))
+    dt = next(iter(internal.values())).dtype
+    w, s, _ = (jnp.asarray(a, dt).reshape((1,) * (len(lead) - 1) + (-1,)) for a in layer_weights(lead[-1]))
     u = jnp.maximum(speed, U_EPS)[..., None]
-    h = depth_n[..., None]
-    mu = law.mu(params, 3.0 * u / h * s, internal)
-    F = jnp.sum(w / mu, axis=-1)
-    tau_b = u[..., 0] / (depth_n * F)
-    return F, tau_b[..., None] * s / mu
+    mu = law.mu(params, 3.0 * u / depth_n[..., None] * s, internal)
+    return mu, jnp.sum(w / mu, axis=-1)
+
+
+def layer_rates(speed, depth_n, mu, fluidity):
+    """The K layers' shear rates [1/s], tau_b (1 - zeta_k) / mu_k with tau_b = U / (h F), of columns whose layers
+    have the viscosities ``mu`` (last axis) and the fluidity ``fluidity`` (:func:`layered`)."""
+    s = jnp.asarray(layer_weights(mu.shape[-1])[1], mu.dtype).reshape((1,) * (mu.ndim - 1) + (-1,))
+    tau_b = jnp.maximum(speed, U_EPS) / (depth_n * fluidity)
+    return tau_b[..., None] * s / mu
 
 
 def has_yield(law) -> bool:

@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _bodies, _constitutive, _dem, _release, _rheology, _shallow, _shapes, _split
+from . import _basal, _bodies, _constitutive, _dem, _release, _rheology, _shallow, _shapes, _split
 from ._boundary import inflow_layout
 from ._scene import WALL_KINDS, Basal, Gate, Inflow, Params, Scene, Terrain, Wall, ghost_cells, init_state
 from ._schema import SceneError
@@ -61,6 +61,15 @@ def make_rheology(cfg: dict):
     """The law instance of ``material.model`` with its static options from the scene."""
     law = _rheology.MODELS[cfg["material.model"]]
     return law(**{o.name: cfg[o.key] for o in law.options})
+
+
+def layers_of(cfg: dict) -> int:
+    """The layers across a column's depth that carry the law's internal variables (``_basal.layered``): the
+    scene's ``numerics.depth_layers`` in the depth-averaged formulation for a law with internal variables and no
+    yield stress (the layered closure has no yield part), else 1."""
+    law = _rheology.MODELS[cfg["material.model"]]
+    layered = cfg["model.formulation"] == "depth-averaged" and law.internals and not _basal.has_yield(law)
+    return int(cfg["numerics.depth_layers"]) if layered else 1
 
 
 def bodies_below_terrain(cfg: dict, terrain, meshes: list) -> list[str]:
@@ -363,7 +372,8 @@ def memory_estimate(cfg: dict) -> dict:
     if shallow and cfg["numerics.split_levels"] > 0:  # the spare slots of column splitting (_split)
         n *= 1.0 + float(cfg["numerics.split_pool"])
     nodes = float(np.prod(np.asarray(_grid_shape(cfg), float)[:k]))
-    n_internal = len(_rheology.MODELS[cfg["material.model"]].internals)
+    # internal variables per particle: one value each, or one per layer across a column's depth
+    n_internal = len(_rheology.MODELS[cfg["material.model"]].internals) * layers_of(cfg)
     state_per_particle = (2 * dim + 2 * dim * dim + 3 + n_internal) * item + 2  # x v C tau J vol0 mu internal; bools
     stencil = _shapes.STENCIL[cfg["numerics.shape"]] ** dim
     step_per_particle = 2 * stencil * (2 * dim + 3) * item
@@ -399,6 +409,7 @@ def build(cfg: dict) -> Setup:
         jax.config.update("jax_enable_x64", True)
     params = make_params(cfg, dim, dtype)
     rheology = make_rheology(cfg)
+    depth_layers = layers_of(cfg)
     meshes: list = []
     x, vol0, v = seed_bodies(cfg, meshes)
     terrain = terrain_of(cfg)
@@ -538,8 +549,7 @@ def build(cfg: dict) -> Setup:
         formulation=cfg["model.formulation"],
         bed_curvature=cfg["model.bed_curvature"],
         split_levels=int(cfg["numerics.split_levels"]) if shallow else 0,
-        # layers across the depth carry internal variables: none to carry, one "layer"
-        depth_layers=int(cfg["numerics.depth_layers"]) if shallow and rheology.internals else 1,
+        depth_layers=depth_layers,
         split_min_volume=float(split_min),
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

@@ -45,7 +45,8 @@ ghost layers and box faces as in the full step).  One step:
    viscosity there.  With ``numerics.depth_layers`` = K > 1 the internal variables are (n, K), one
    value per layer across the depth, each advanced at its layer's own rate, and the nodes' closure
    takes the columns' mass-weighted fluidity F (scattered in step 3 instead of the variables) rather
-   than the law at their mean (``_basal``, "layered");
+   than the law at their mean (``_basal``, "layered"); ``state.mu`` is then 1 / (3 F), the Newtonian
+   viscosity of the step's basal shear (the layers' viscosities before their update);
 7. for the outputs, the stored vertical coordinate is the column's mid-depth z_b(X) + H(X) / 2
    and the vertical velocity u . grad z_b (the bed-following velocity), so result files, plan-view
    maps and hazard maps read a depth-averaged state as they read a 3-D one; J stays 1 and the
@@ -276,10 +277,10 @@ def make_shallow_step(scene: Scene):
         contrib = m[:, None, None] * st.w[..., None] * (u[:, None, :] + affine + dt * a[:, None, :])
         contrib = contrib + dt * push[:, None, None] * st.dw
         mom = jnp.zeros((n_nodes, k), dtp).at[st.idx.reshape(-1)].add(contrib.reshape(-1, k))
-        if layered:
-            # the columns' fluidity F (``_basal.layered``), not the layers themselves: F = 1 / (3 mu), mu the
-            # Newtonian viscosity of the same basal shear that step 6 stored from the updated layers
-            chans = [m[:, None], (m / (3.0 * state.mu))[:, None]]
+        if layered:  # the columns' fluidity F (``_basal.layered``) at their last speed, not the layers themselves
+            U_last = _safe_norm(jnp.stack([_safe_norm(u), jnp.sum(u * grad_zb, axis=1)], axis=1))
+            mu_k, F_p = _basal.layered(law, mat, U_last, jnp.maximum(H_p, 1e-12) * jnp.sqrt(c2), state.internal)
+            chans = [m[:, None], (m * F_p)[:, None]]
         else:
             chans = [m[:, None]] + [(m * state.internal[nm])[:, None] for nm in names]
         normal_g = curved and frictional  # the nodes' bed-normal gravity from the particles' (Coulomb part)
@@ -290,8 +291,8 @@ def make_shallow_step(scene: Scene):
         has = mass > m_empty * rho
         inv_m = jnp.where(has, 1.0 / jnp.where(has, mass, 1.0), 0.0)
         u_star = mom * inv_m[:, None]
-        if layered:
-            internal_n, fluidity_n = None, grid[:, 1] * inv_m
+        if layered:  # a node without mass has no fluidity: 1 keeps c finite (its velocity is zeroed below)
+            internal_n, fluidity_n = None, jnp.where(has, grid[:, 1] * inv_m, 1.0)
         else:
             internal_n, fluidity_n = {nm: grid[:, 1 + i] * inv_m for i, nm in enumerate(names)}, None
         g_vn = grid[:, -1] * inv_m if normal_g else g_n
@@ -340,11 +341,10 @@ def make_shallow_step(scene: Scene):
         sp = _safe_norm(u_new)
         su = jnp.sum(u_new * grad_zb, axis=1)
         U_p = _safe_norm(jnp.stack([sp, su], axis=1))
-        if layered:  # every layer at its own rate (``_basal.layered``)
-            _, rate = _basal.layered(law, mat, U_p, hn_p, state.internal)
+        if layered:  # every layer at its own rate under the step's basal shear (``_basal.layer_rates``)
+            rate = _basal.layer_rates(U_p, hn_p, mu_k, F_p)
             _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate[:, None])
-            F_new, _ = _basal.layered(law, mat, U_p, hn_p, internal)
-            _, _, mu = _basal.closure(law, mat, U_p, hn_p, None, fluidity=F_new)
+            mu = 1.0 / (3.0 * F_p)  # the Newtonian viscosity of the step's basal shear
         else:
             rate = _basal.shear_rate(U_p, hn_p)
             _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate)

@@ -6,7 +6,8 @@ grid per frame.  Every array is a HyperSlab of the HDF5 datasets (no data is cop
 frame ``k`` selects start ``(k, 0[, 0])``, stride 1, count ``(1, n[, dim])`` of
 ``/frames/x_m`` (geometry, XY in 2D / XYZ in 3D) and of each per-particle field
 (``v_m_s`` vector, ``J``, ``mu_pa_s``, ``active``, ``lambda`` and any other rheology
-field: scalars), all node-centred.  The HDF5 path is written relative to the XDMF file
+field: scalars; a field's layers across a depth-averaged column, ``lambda_layers``, are not exported), all
+node-centred.  The HDF5 path is written relative to the XDMF file
 (just the file name when both lie in one folder), so the pair can be moved together.
 """
 
@@ -19,7 +20,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ._io import atomic_write_text
+from ._io import LAYERS_SUFFIX, atomic_write_text
 
 FIELD_ORDER = ("v_m_s", "J", "mu_pa_s", "active", "lambda")
 
@@ -77,7 +78,7 @@ def write_xdmf(h5_path, xdmf_path=None) -> Path:
                 continue
             if ds.shape[1:] == (n,):
                 fields.append((name, ds.shape, ds.dtype, "Scalar"))
-            elif ds.shape[1:] == (n, dim):
+            elif ds.shape[1:] == (n, dim) and not name.endswith(LAYERS_SUFFIX):  # layers across a depth: no vector
                 fields.append((name, ds.shape, ds.dtype, "Vector"))
         n_frames = min([len(t), xs.shape[0]] + [s[0] for _, s, _, _ in fields])
         x_shape, x_dtype = xs.shape, xs.dtype

@@ -13,6 +13,8 @@ layer's linear stress (docs/depth-layers.md).  Float64 (tests/conftest.py).
 * the derivative of that speed with respect to mu0 through the layered step (forward mode) against a central
   difference of 1e-6 mu0 (1e-6 relative; measured 3e-8: the speed is far from linear in mu0, so the
   difference converges only below 1e-5 mu0);
+* float32 reverse mode through the layers equals forward mode and is finite (a node without mass has no
+  fluidity);
 * the result file holds the depth mean and the layers; the full model refuses layers (naming the key).
 """
 
@@ -49,7 +51,8 @@ def test_a_uniform_column_is_the_newtonian_closure():
     p = _params()
     K, U, h = 16, jnp.asarray([0.2]), jnp.asarray([0.05])
     lam = jnp.full((1, K), 0.7)
-    F, rates = _basal.layered(LAW, p, U, h, {"lam": lam})
+    mu_k, F = _basal.layered(LAW, p, U, h, {"lam": lam})
+    rates = _basal.layer_rates(U, h, mu_k, F)
     mu = float(LAW.mu(p, jnp.zeros(1), {"lam": jnp.asarray([0.7])})[0])
     assert float(F[0]) == pytest.approx(1.0 / (3.0 * mu), rel=1e-12)
     _, s, _ = _basal.layer_weights(K)
@@ -66,7 +69,7 @@ def test_a_band_under_a_plug_is_the_series_integral():
     e = _basal.layer_edges(K)
     j = 5  # the band: the bottom five layers
     lam = jnp.where(jnp.arange(K) < j, 0.3, 9.0)[None, :]
-    F, _ = _basal.layered(LAW, p, jnp.asarray([0.1]), jnp.asarray([0.05]), {"lam": lam})
+    _, F = _basal.layered(LAW, p, jnp.asarray([0.1]), jnp.asarray([0.05]), {"lam": lam})
     mu_b, mu_p = (float(LAW.mu(p, jnp.zeros(1), {"lam": jnp.asarray([v])})[0]) for v in (0.3, 9.0))
     exact = (1.0 - (1.0 - e[j]) ** 3) / (3.0 * mu_b) + (1.0 - e[j]) ** 3 / (3.0 * mu_p)
     assert float(F[0]) == pytest.approx(exact, rel=1e-12)
@@ -134,6 +137,29 @@ def test_the_layered_speed_has_the_derivative_of_its_finite_difference(layered_l
     _, jvp = jax.jvp(speed, (s.params,), (tangent,))
     fd = (float(speed(at(float(mat.mu0) + d))) - float(speed(at(float(mat.mu0) - d)))) / (2 * d)
     assert float(jvp) == pytest.approx(fd, rel=1e-6)  # measured 3e-8
+
+
+def test_float32_reverse_mode_through_layers_is_finite_and_equals_forward_mode():
+    """The lab dam break as columns with 8 layers, float32 under the suite's 64-bit mode (the layers' weights take
+    the state's dtype), 0.2 s: d(front speed sum)/d mu0 by reverse mode equals forward mode (1e-3: float32) and is
+    finite (a node the stencil reaches without mass has no fluidity; its c must not be 1/0 in reverse mode)."""
+    import mpmjax
+
+    s = mpmjax.build(mpmjax.load_scene("dambreak-lab", [
+        "model.formulation=depth-averaged", "numerics.depth_layers=8", "numerics.dtype=float32",
+        "domain.cell_size_m=0.02", "time.t_end_s=0.2", "time.n_frames=1"]))
+    assert s.state.internal["lam"].dtype == jnp.float32
+
+    def f(mu0):
+        p = s.params._replace(material=s.params.material._replace(mu0=mu0))
+        fin, _ = simulate(s.scene, s.state, p)
+        return jnp.sum(jnp.abs(fin.v[:, 0]) * fin.active)
+
+    mu0 = s.params.material.mu0
+    rev = float(jax.jit(jax.grad(f))(mu0))
+    fwd = float(jax.jit(lambda m: jax.jvp(f, (m,), (jnp.ones_like(m),))[1])(mu0))
+    assert math.isfinite(rev) and rev < 0.0  # a more viscous material moves slower
+    assert rev == pytest.approx(fwd, rel=1e-3)
 
 
 def test_the_result_file_holds_the_mean_and_the_layers(tmp_path, layered_lab):

@@ -3,8 +3,8 @@ across the depth (``numerics.depth_layers``; docs/depth-averaged.md, "Structure 
 
 A layer ``H`` deep of a built-in Coussot material, released from rest over a long incline (16 m for the lab's
 5 cm to 6 s, 750 m for the field's 5 m to 30 s; open at its lower end, a slip wall at its upper: its middle third
-stays uniform for longer than the run, the disturbances from the ends travelling in at about sqrt(g H)), at the slope whose bed stress is r tau_c (tau_c the flow curve's minimum,
-``rheometer.critical_point``).  The columns in the middle third against ``mpmjax.studies.film`` (the same
+stays uniform for longer than the run, the disturbances from the ends travelling in at about sqrt(g H)), at the
+slope whose bed stress is r tau_c (tau_c the flow curve's minimum, ``rheometer.critical_point``).  The columns in the middle third against ``mpmjax.studies.film`` (the same
 layer solved across its depth, 100 layers): mean speeds at 1, 2, 4 and 6 s (and 12 and 30 s for the field) and
 their ratio; the loop's CPU time.  One JSON line per
 case and layer count; float64.

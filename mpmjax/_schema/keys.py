@@ -195,7 +195,7 @@ _HEAD: dict[str, Key] = {
         "thixotropic lubrication, layered): a band that breaks down at the bed under an aging plug, which one "
         "value cannot hold. A 5 cm lab layer released from rest at twice its flow curve's minimum stress runs 1.75x "
         "the speed of the same layer solved across its depth with 1, within 1 % with 16 (4.5x and within 4 % at 1.5 "
-        "times that stress); 16 layers cost 1.1-1.6x the loop of the field scenes. A no-op for laws without internal "
+        "times that stress); 16 layers cost 1.1-1.25x the loop of the field scenes. A no-op for laws without internal "
         "variables; the full model refuses any value but 1. docs/depth-layers.md.",
         lo=1,
         hi=256,
