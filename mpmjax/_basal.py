@@ -137,7 +137,7 @@ def closure(law, params, speed, depth_n, internal, normal_stress=None, friction=
         tau_0 = jnp.zeros_like(c)
         if friction is not None:
             tau_0 = tau_0 + friction * normal_stress
-        return tau_0, c, c * depth_n / 3.0
+        return tau_0, c, 1.0 / (3.0 * fluidity)  # = c h / 3
     u = jnp.maximum(speed, U_EPS)
     rate = shear_rate(u, depth_n)
     yield_ = has_yield(law)

@@ -344,7 +344,7 @@ def make_shallow_step(scene: Scene):
         if layered:  # every layer at its own rate under the step's basal shear (``_basal.layer_rates``)
             rate = _basal.layer_rates(U_p, hn_p, mu_k, F_p)
             _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate[:, None])
-            mu = 1.0 / (3.0 * F_p)  # the Newtonian viscosity of the step's basal shear
+            _, _, mu = _basal.closure(law, mat, U_p, hn_p, None, fluidity=F_p)  # Newtonian mu of the step's shear
         else:
             rate = _basal.shear_rate(U_p, hn_p)
             _, internal = law.viscosity(mat, rate, state.internal, dt, state.gate)
