@@ -15,7 +15,10 @@ layer's linear stress (docs/depth-layers.md).  Float64 (tests/conftest.py).
   difference converges only below 1e-5 mu0);
 * float32 reverse mode through the layers equals forward mode and is finite (a node without mass has no
   fluidity);
-* the result file holds the depth mean and the layers; the full model refuses layers (naming the key).
+* the result file holds the depth mean and the layers; the full model refuses layers (naming the key) and ignores
+  the default;
+* ``mpmjax validate``'s ``coussot-film-da`` at its full size passes with the default layers at both stresses, and
+  with one value per column misses by more than 50 % (measured -0.02 / -3.2 % against +75 / +348 %).
 """
 
 from __future__ import annotations
@@ -185,3 +188,21 @@ def test_the_full_model_refuses_layers():
     }
     with pytest.raises(SceneError, match="numerics.depth_layers = 8 is invalid with model.formulation = 'full'"):
         validate(raw)
+    del raw["numerics"]
+    assert validate(raw)["numerics.depth_layers"] == 1  # the depth-averaged default is not the full model's
+
+
+def test_the_validate_case_passes_with_the_default_layers_and_fails_with_one(tmp_path):
+    """The suite's depth-averaged Coussot case at its full size (6 s, two runs of 1280 columns: seconds): the
+    default's 16 layers within its 5 % at 2 and 1.5 tau_c; one value per column fails it by far (+75 / +348 %
+    measured), so the case is what chose the default."""
+    from mpmjax.studies.validate import run_validate
+
+    doc = run_validate(["coussot-film-da"], size="full", out=tmp_path / "k16", log=lambda m: None)
+    rec = doc["cases"]["coussot-film-da"]
+    assert rec["pass"] and [r["depth_layers"] for r in rec["runs"]] == [16, 16]
+    assert [c["name"] for c in rec["checks"]] == ["mean speed vs the 1D film at 2 tau_c",
+                                                  "mean speed vs the 1D film at 1.5 tau_c"]
+    one = run_validate(["coussot-film-da"], size="full", out=tmp_path / "k1", base={"numerics.depth_layers": 1},
+                       log=lambda m: None)["cases"]["coussot-film-da"]
+    assert one["pass"] is False and all(c["error"] > 0.5 for c in one["checks"])

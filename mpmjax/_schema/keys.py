@@ -186,17 +186,19 @@ _HEAD: dict[str, Key] = {
     ),
     "numerics.depth_layers": Key(
         int,
-        1,
+        16,
         "-",
         "Depth-averaged formulation only: layers across each column's depth that carry the law's internal "
-        "variables (Coussot's structure lambda). 1: one value per column, advanced at the Newtonian profile's bed "
-        "rate 3 U / h. K > 1: K layers graded towards the bed, each sheared at its own rate under the shallow "
-        "layer's linear stress, the basal shear from their viscosities in series (Hewitt & Balmforth's "
-        "thixotropic lubrication, layered): a band that breaks down at the bed under an aging plug, which one "
-        "value cannot hold. A 5 cm lab layer released from rest at twice its flow curve's minimum stress runs 1.75x "
-        "the speed of the same layer solved across its depth with 1, within 1 % with 16 (4.5x and within 4 % at 1.5 "
-        "times that stress); 16 layers cost 1.1-1.25x the loop of the field scenes. A no-op for laws without internal "
-        "variables; the full model refuses any value but 1. docs/depth-layers.md.",
+        "variables (Coussot's structure lambda). K > 1: K layers graded towards the bed, each sheared at its own "
+        "rate under the shallow layer's linear stress, the basal shear from their viscosities in series (Hewitt & "
+        "Balmforth's thixotropic lubrication, layered): a band that breaks down at the bed under an aging plug. 1: "
+        "one value per column, advanced at the Newtonian profile's bed rate 3 U / h, which cannot hold that band: "
+        "mpmjax validate's coussot-film-da (a 5 cm lab layer from rest against the same layer solved across its "
+        "depth) reads +75 % at twice the flow curve's minimum stress and +348 % at 1.5 times it with 1, -0.02 % "
+        "and -3.2 % with 16 (8: -19 % at 1.5; 32: -0.3 %). The default 16 since 2026-12-07 (1 before); it costs "
+        "1.1-1.25x the loop of the field scenes and moves their fronts by about -1 %. A no-op for laws without "
+        "internal variables or with a yield stress; the full model ignores the default and refuses any value but "
+        "1. docs/depth-layers.md.",
         lo=1,
         hi=256,
     ),

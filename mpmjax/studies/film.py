@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._rheology import law_of
+from ._ode import solve_saved
 
 N_LAYERS = 100
 RTOL, ATOL = 1e-6, 1e-9  # the adaptive step's tolerances (ATOL in m/s and in the internal variables' units)
@@ -58,19 +59,9 @@ def _solver(law, n: int):
     @jax.jit
     def solve(params, internal0, ts, dy, g_s):
         y0 = (jnp.zeros(n), internal0)
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(rhs),
-            diffrax.Kvaerno5(),
-            0.0,
-            ts[-1],
-            1e-6 * ts[-1],
-            y0,
-            args=(params, dy, g_s),
-            saveat=diffrax.SaveAt(ts=ts),
-            stepsize_controller=diffrax.PIDController(rtol=RTOL, atol=ATOL),
-            max_steps=MAX_STEPS,
+        return solve_saved(
+            rhs, diffrax.Kvaerno5(), y0, ts, 1e-6 * ts[-1], (params, dy, g_s), rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS
         )
-        return sol.ys, sol.stats["num_steps"]
 
     return solve
 

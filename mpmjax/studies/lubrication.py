@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._observables import FRONT_FRACTION
+from ._ode import solve_saved
 
 # the solve: cells over [0, X], relative tolerance of the adaptive step, the most steps
 N_CELLS = 200
@@ -59,19 +60,7 @@ def _solver(rtol: float):
 
     @jax.jit
     def solve(h0, ts, dx, k, ty, atol, dt0):
-        sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(rhs),
-            diffrax.Tsit5(),
-            0.0,
-            ts[-1],
-            dt0,
-            h0,
-            args=(dx, k, ty),
-            saveat=diffrax.SaveAt(ts=ts),
-            stepsize_controller=diffrax.PIDController(rtol=rtol, atol=atol),
-            max_steps=MAX_STEPS,
-        )
-        return sol.ys, sol.stats["num_steps"]
+        return solve_saved(rhs, diffrax.Tsit5(), h0, ts, dt0, (dx, k, ty), rtol=rtol, atol=atol, max_steps=MAX_STEPS)
 
     return solve
 
