@@ -550,6 +550,7 @@ def build(cfg: dict) -> Setup:
         bed_curvature=cfg["model.bed_curvature"],
         split_levels=int(cfg["numerics.split_levels"]) if shallow else 0,
         depth_layers=depth_layers,
+        internal_friction_deg=cfg["model.internal_friction_deg"],
         split_min_volume=float(split_min),
         flip_blend=cfg["numerics.flip_blend"],
         rheology=rheology,

@@ -198,6 +198,8 @@ class Scene:
         0 levels: off.
       depth_layers: depth-averaged only: layers across a column's depth that carry the law's internal
         variables (1: one value per column; ``_basal.layered``).
+      internal_friction_deg: depth-averaged only: the internal friction angle of a granular column, which scales
+        its hydrostatic pressure by Savage & Hutter's earth-pressure coefficient (``_earth_pressure``); None: k = 1.
     """
 
     dim: int
@@ -240,6 +242,7 @@ class Scene:
     bed_curvature: str = "centrifugal"
     split_levels: int = 0
     depth_layers: int = 1
+    internal_friction_deg: float | None = None
     split_min_volume: float = 0.0
 
     @property

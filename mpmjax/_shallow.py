@@ -27,7 +27,9 @@ ghost layers and box faces as in the full step).  One step:
    particle): the vertical acceleration of a column that follows the bed, as Savage-Hutter type
    models on curved beds carry it (a point mass on a frictionless bed z_b then moves as a bead on a
    wire; tests/test_depth_averaged_bed.py).  It enters the slope force, the pressure and the
-   Coulomb part's normal stress (step 4);
+   Coulomb part's normal stress (step 4).  With ``model.internal_friction_deg`` (a granular column on a
+   Coulomb bed) the pressure is Savage & Hutter's k times the hydrostatic one, k active or passive by the
+   sign of the column's velocity divergence tr(C_p) (``_earth_pressure``);
 3. P2G (APIC): nodal mass, momentum sum_p w_ip m_p (u_p + C_p (x_i - X_p) + dt a_p) and the
    internal variables (mass-weighted); u* = momentum / mass;
 4. basal shear on the nodes (``_basal``): tau_b = tau_0 + c U at the node's bed speed U and
@@ -70,7 +72,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _basal, _shapes, _split
+from . import _basal, _earth_pressure, _shapes, _split
 from ._scene import Params, Scene, State, box_wall_nodes, next_time
 
 # nodal mass below this fraction of a full cell's mass (float32 only) counts as empty (as _step)
@@ -229,6 +231,7 @@ def make_shallow_step(scene: Scene):
     m_empty = EMPTY_NODE_FRACTION * h**k if np.dtype(scene.dtype) == np.float32 else 0.0
     names = law.internal_fields
     layered = scene.depth_layers > 1  # the internal variables in layers across the depth (``_basal.layered``)
+    phi = scene.internal_friction_deg  # a granular column's earth pressure (``_earth_pressure``); None: k = 1
     # column splitting (``_split``): the children stay inside the box's walls and the grid's safe region
     split_lo, split_hi = safe_lo.copy(), safe_hi.copy()
     for ax, point, nrm, _, _ in walls:
@@ -271,6 +274,11 @@ def make_shallow_step(scene: Scene):
         a = g_t[None, :] - (g_v * c2)[:, None] * grad_zb
         m = rho * V
         push = 0.5 * g_v * c2 * m * H_p  # rho g_v c^2 V H / 2: the column's depth-integrated pressure x area
+        if phi is not None:  # Savage & Hutter: k_act where the column extends (div u = tr C >= 0), k_pass else
+            div_u = jnp.trace(C, axis1=1, axis2=2)
+            k_p = _earth_pressure.per_column(phi, _basal_params(params).friction, div_u)
+            grad_H = jnp.sum(st.gather(H)[..., None] * st.dw, axis=1)  # (n, k)
+            a = a - ((k_p - 1.0) * g_v * c2)[:, None] * grad_H
 
         # 3. P2G: mass, momentum with the driving impulse, internal variables
         affine = jnp.einsum("pab,pnb->pna", C, st.off)  # C (x_i - X_p): (n, S^k, k)
@@ -430,11 +438,15 @@ def time_step_limits(cfg: dict, params: Params, x: np.ndarray, vol0: np.ndarray,
     on the cells, U = the velocity scale (``numerics.velocity_scale_m_s``, or
     sqrt(4 g_n H_max + 2 g dZ) + the largest initial speed: the Ritter front speed 2 sqrt(g H) of the
     deepest column plus the speed of a fall dZ = ``fall`` [m], the drop from the highest bed point
-    under the material to the lowest the material can reach).  The basal friction is implicit: no
+    under the material to the lowest the material can reach); with ``model.internal_friction_deg`` g_n times the
+    largest earth-pressure coefficient (``_earth_pressure.largest``).  The basal friction is implicit: no
     viscous limit (``dt_viscous_s`` = inf)."""
     g = np.asarray(params.gravity, float)
     g_n = float(-g[-1])
     gm = float(np.linalg.norm(g))
+    phi = cfg["model.internal_friction_deg"]
+    if phi is not None:  # a granular column's pressure, and so its wave speed, is at most Rankine's passive k times
+        g_n *= _earth_pressure.largest(phi)
     h = float(cfg["domain.cell_size_m"])
     H = max_depth(cfg, x, vol0)
     c = math.sqrt(max(g_n, 0.0) * H)

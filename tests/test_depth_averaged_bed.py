@@ -328,17 +328,13 @@ def test_the_plug_flow_cubic_keeps_finite_float32_tangents():
         np.testing.assert_allclose(np.asarray(val, float), s, rtol=1e-5)
 
 
-def test_a_coulomb_dam_break_on_an_incline_follows_mangeney():
-    """Mangeney, Heinrich & Roche (2000): a dam break of a frictional layer (Coulomb mu, earth pressure 1)
-    on a plane at theta is Ritter's in the frame that accelerates at m = g (sin - mu cos), with
-    c0 = sqrt(g cos H0): depth (2 c0 - xi / t)^2 / (9 g cos), xi = x - x0 - m t^2 / 2, speed
-    2/3 (c0 + xi / t) + m t.  theta = 30 degrees, mu = 0.3, H0 = 0.1 m, 0.4 s, h = 1 cm, 8 columns a
-    cell (the Ritter test's run, tests/test_depth_averaged.py, with the slope and the friction).
-    Measured: depth at the moving dam site +1.5 % of 4/9 H0, its speed -0.6 %, L1 of the resolved
-    profile (H >= H0/5) 1.0 %, the H0/5 point +0.3 % of the travel 2 c0 t; all bounded at 2 % (the
-    Ritter test's bounds: the friction adds no error of its own).  The farthest particle lags 14 %
-    (Ritter's 12.5 %: "The Ritter tip", docs/depth-averaged.md)."""
-    theta, mu_c, h0, x0, t_end, h = math.radians(30.0), 0.3, 0.1, 1.0, 0.4, 0.01
+def _mangeney(phi, mu_c=0.3, t_end=0.4, h0=0.1, x0=1.0, h=0.01):
+    """The Coulomb dam break on the 30-degree plane (``test_a_coulomb_dam_break_on_an_incline_follows_mangeney``),
+    with ``model.internal_friction_deg`` = ``phi`` (None: unset, k = 1): the final state, the plan depth, and the
+    exact solution's (k, c0, m, dam site)."""
+    from mpmjax import _earth_pressure
+
+    theta = math.radians(30.0)
     raw = {
         "model": {"formulation": "depth-averaged"},
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [3.0, 0.2], "cell_size_m": h},
@@ -350,13 +346,32 @@ def test_a_coulomb_dam_break_on_an_incline_follows_mangeney():
         "time": {"t_end_s": t_end, "n_frames": 4},
         "bodies": [{"type": "box", "lo_m": [0.0, 0.0], "hi_m": [x0, h0]}],
     }
+    if phi is not None:
+        raw["model"]["internal_friction_deg"] = phi
     s = build(validate(raw))
     fin, _ = _run(s.scene, s.state, s.params)
     H, xn = plan_depth(s.scene, fin)
-    H, xn = np.asarray(H), xn[:, 0]
-    gc = G * math.cos(theta)
-    c0, m = math.sqrt(gc * h0), G * (math.sin(theta) - mu_c * math.cos(theta))
-    site = x0 + 0.5 * m * t_end**2
+    k = 1.0 if phi is None else float(_earth_pressure.coefficients(phi, mu_c)[0])  # active: the flow extends
+    c0, m = math.sqrt(k * G * math.cos(theta) * h0), G * (math.sin(theta) - mu_c * math.cos(theta))
+    return s, fin, np.asarray(H), xn[:, 0], (k, c0, m, x0 + 0.5 * m * t_end**2)
+
+
+@pytest.mark.parametrize("phi", [None, 35.0], ids=["hydrostatic", "granular-35deg"])
+def test_a_coulomb_dam_break_on_an_incline_follows_mangeney(phi):
+    """Mangeney, Heinrich & Roche (2000): a dam break of a frictional layer (Coulomb mu, earth pressure k)
+    on a plane at theta is Ritter's in the frame that accelerates at m = g (sin - mu cos), with
+    c0 = sqrt(k g cos H0): depth (2 c0 - xi / t)^2 / (9 k g cos), xi = x - x0 - m t^2 / 2, speed
+    2/3 (c0 + xi / t) + m t.  theta = 30 degrees, mu = 0.3, H0 = 0.1 m, 0.4 s, h = 1 cm, 8 columns a
+    cell (the Ritter test's run, tests/test_depth_averaged.py, with the slope and the friction).
+    k = 1 (a fluid): depth at the moving dam site +1.5 % of 4/9 H0, its speed -0.6 %, L1 of the resolved
+    profile (H >= H0/5) 1.0 %, the H0/5 point +0.3 % of the travel 2 c0 t.  A granular layer with an internal
+    friction angle of 35 degrees (``model.internal_friction_deg``): the whole wave extends, so k is Savage &
+    Hutter's active 0.4358 (c0 0.66 times the fluid's): +0.29 %, -0.79 %, 0.96 %, -0.44 % (docs/earth-pressure.md).
+    All bounded at 2 % (the Ritter test's bounds: neither friction nor k adds an error of its own).  The
+    farthest particle lags 9-14 % (Ritter's 12.5 %: "The Ritter tip", docs/depth-averaged.md)."""
+    s, fin, H, xn, (k, c0, m, site) = _mangeney(phi)
+    t_end, h0, h = 0.4, 0.1, 0.01
+    gc = k * G * math.cos(math.radians(30.0))
     xi = (xn - site) / t_end
     exact = np.where(xi < -c0, h0, (2 * c0 - xi) ** 2 / (9 * gc))
     exact = np.where(xi > 2 * c0, 0.0, exact)

@@ -57,6 +57,21 @@ _HEAD: dict[str, Key] = {
         "alone (the form before 2026-12-05). No effect on a plane bed.",
         choices=("centrifugal", "none"),
     ),
+    "model.internal_friction_deg": Key(
+        float,
+        None,
+        "deg",
+        "Depth-averaged formulation on a coulomb or voellmy terrain only: the internal friction angle phi of a "
+        "granular (Mohr-Coulomb) material, which scales the columns' hydrostatic pressure by Savage & Hutter's "
+        "earth-pressure coefficient (1989): k_act/pass = 2 / cos^2(phi) (1 -/+ sqrt(1 - cos^2(phi) / "
+        "cos^2(delta))) - 1, tan(delta) = terrain.friction, active where a column extends, passive where it is "
+        "compressed (isotropic in the plan). At least the bed's friction angle. Unset: k = 1, a fluid's "
+        "hydrostatic pressure (tailings, muds). The wave speed and so the time step take Rankine's passive "
+        "(1 + sin phi) / (1 - sin phi). docs/earth-pressure.md.",
+        lo=0.0,
+        lo_open=True,
+        hi=60.0,
+    ),
     "domain.dim": Key(int, 2, "-", "Dimension: 2 (plane strain, per metre of depth) or 3.", choices=(2, 3)),
     "domain.lo_m": Key("vec", _REQ, "m", "Lower corner of the domain box (walls lie on its faces)."),
     "domain.hi_m": Key("vec", _REQ, "m", "Upper corner of the domain box."),

@@ -749,7 +749,28 @@ def _validate_formulation(out: dict, dim: int, given: dict):
                 "'full': the full model follows the bed's curvature itself; allowed: unset, or "
                 "model.formulation = 'depth-averaged'"
             )
+        if out["model.internal_friction_deg"] is not None:
+            raise SceneError(
+                f"model.internal_friction_deg = {_show(out['model.internal_friction_deg'])} is invalid with "
+                "model.formulation = 'full': the earth-pressure coefficient is the depth-averaged column's (the full "
+                "model's stress is its law's); allowed: unset, or model.formulation = 'depth-averaged'"
+            )
         return
+    phi = out["model.internal_friction_deg"]
+    if phi is not None:
+        if out["terrain.type"] not in ("coulomb", "voellmy"):
+            raise SceneError(
+                f"model.internal_friction_deg = {_show(phi)} is invalid with terrain.type = "
+                f"{_show(out['terrain.type'])}: Savage & Hutter's coefficient needs the bed's Coulomb friction; "
+                "allowed: terrain.type = 'coulomb' or 'voellmy', or model.internal_friction_deg unset"
+            )
+        delta = math.degrees(math.atan(out["terrain.friction"]))
+        if phi < delta:
+            raise SceneError(
+                f"model.internal_friction_deg = {_show(phi)} is invalid with terrain.friction = "
+                f"{_show(out['terrain.friction'])} (a bed friction angle of {delta:.4g} deg): allowed range "
+                f"[{delta:.4g}, 60] deg (the bed cannot be rougher than the material's own friction)"
+            )
     why = "(model.formulation = 'depth-averaged': docs/depth-averaged.md, 'Missing')"
     for key, val in _DA_FIXED.items():
         if out[key] != val:
