@@ -569,9 +569,11 @@ def calibrate(
     setup = mpmjax.build(cfg)
     time_set = any(o.split("=", 1)[0].strip() in ("time.t_end_s", "time.n_frames") for o in overrides_given or [])
     _check_reach(setup, runout_m, latest, time_set)
-    pset = ParameterSet.from_names(
-        names, setup.params, init=init, bounds=dict(bounds or {}), transforms=dict(transforms or {})
-    )
+    bounds = dict(bounds or {})
+    if cfg["model.internal_friction_deg"] is not None and "friction" in names and "friction" not in bounds:
+        # a granular column's bed friction stays at or below tan(phi) (mpmjax.fit_parameters with the scene)
+        bounds["friction"] = mpmjax.fit_parameters(setup.params, cfg)["friction"].bounds
+    pset = ParameterSet.from_names(names, setup.params, init=init, bounds=bounds, transforms=dict(transforms or {}))
     starts = default_starts(len(pset.free)) if starts is None else starts
     # the observable is the same at every level: bandwidth and runout sigma fixed in metres
     bandwidth_m = bandwidth_m if bandwidth_m is not None else levels[0]

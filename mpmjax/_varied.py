@@ -10,6 +10,9 @@ range.  ``calibrate``, ``sweep`` and a fit in Python name either kind the same w
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -54,6 +57,14 @@ def fit_parameters(params=None, cfg=None) -> dict[str, _rheology.Param]:
     if cfg is not None:
         for name in unused_parameters(cfg):
             out.pop(name, None)
+        phi = cfg.get("model.internal_friction_deg")
+        if phi is not None and out.get("friction") is not None:
+            # the bed cannot be rougher than the material (the scene refuses it), and Savage & Hutter's k has an
+            # infinite derivative in the friction there: a fit or sweep stays at or below tan(phi)
+            top = math.tan(math.radians(phi))
+            f = out["friction"]
+            bounds = (min(f.bounds[0], 0.5 * top), min(f.bounds[1], top))
+            out["friction"] = dataclasses.replace(f, hi=top, bounds=bounds)
     return out
 
 

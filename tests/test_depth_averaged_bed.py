@@ -365,10 +365,13 @@ def test_a_coulomb_dam_break_on_an_incline_follows_mangeney(phi):
     cell (the Ritter test's run, tests/test_depth_averaged.py, with the slope and the friction).
     k = 1 (a fluid): depth at the moving dam site +1.5 % of 4/9 H0, its speed -0.6 %, L1 of the resolved
     profile (H >= H0/5) 1.0 %, the H0/5 point +0.3 % of the travel 2 c0 t.  A granular layer with an internal
-    friction angle of 35 degrees (``model.internal_friction_deg``): the whole wave extends, so k is Savage &
-    Hutter's active 0.4358 (c0 0.66 times the fluid's): +0.29 %, -0.79 %, 0.96 %, -0.44 % (docs/earth-pressure.md).
-    All bounded at 2 % (the Ritter test's bounds: neither friction nor k adds an error of its own).  The
-    farthest particle lags 9-14 % (Ritter's 12.5 %: "The Ritter tip", docs/depth-averaged.md)."""
+    friction angle of 35 degrees (``model.internal_friction_deg``): the exact wave extends everywhere, so k is
+    Savage & Hutter's active 0.4358 (c0 0.66 times the fluid's): +0.29 %, -0.79 %, 0.96 %, -0.44 %
+    (docs/earth-pressure.md).  All bounded at 2 % (the Ritter test's bounds: neither friction nor k adds an error
+    of its own).  In the run a quarter to a half of the columns, in the plateau where du/dx = 0 and grad H = 0,
+    take k_pass on the transfers' noise in tr(C); over the whole wave, tip included, L1 reads 1.87 % (k = 1: 1.83 %;
+    every column forced active: 2.0 %), bounded at 3 %.  The farthest particle lags 9-14 % (Ritter's 12.5 %:
+    "The Ritter tip", docs/depth-averaged.md)."""
     s, fin, H, xn, (k, c0, m, site) = _mangeney(phi)
     t_end, h0, h = 0.4, 0.1, 0.01
     gc = k * G * math.cos(math.radians(30.0))
@@ -381,6 +384,8 @@ def test_a_coulomb_dam_break_on_an_incline_follows_mangeney(phi):
     assert np.interp(site, X[order], u[order]) == pytest.approx(2 / 3 * c0 + m * t_end, rel=0.02)
     resolved = (xi > -c0) & (xi < 2 * c0) & (exact >= 0.2 * h0)
     assert np.abs(H - exact)[resolved].sum() / exact[resolved].sum() < 0.02
+    wave = (xi > -c0) & (xi < 2 * c0)
+    assert np.abs(H - exact)[wave].sum() / exact[wave].sum() < 0.03
     i = np.nonzero(H >= 0.2 * h0)[0][-1]
     x_num = xn[i] + (H[i] - 0.2 * h0) / (H[i] - H[i + 1]) * h
     assert abs(x_num - (site + c0 * t_end * (2 - 3 * math.sqrt(0.2)))) < 0.02 * 2 * c0 * t_end

@@ -12,6 +12,7 @@
   (exact in the quadratic B-splines' interior: measured 7e-15, and the hydrostatic one is g dH/dx as exactly).
 * The derivative of the spreading wedge's speed after 40 steps with respect to the bed's friction, which k
   depends on, in forward mode against a central difference (1e-6 relative).
+* The bed friction's declared range and calibration's search range end at tan(phi) in such a scene.
 * The time step takes Rankine's passive coefficient in the wave speed: sqrt(3) times shorter at 30 degrees.
 * The scene refuses it in the full model, without a Coulomb bed, below the bed's friction angle and above 60
   degrees, naming the key and the allowed range.
@@ -107,9 +108,7 @@ def test_a_parabolic_cap_spreads_down_an_incline_as_savage_and_hutters_similarit
 SLOPE = 0.05  # the wedge's depth gradient dH/dx: 0.1 m -> 0.15 m over 1 m
 
 
-def _wedge(phi, friction=0.0, steps=1):
-    """A 1 m block 0.1 m deep on a flat Coulomb bed whose columns' volumes rise linearly along x (depth slope
-    SLOPE), 8 columns a cell, h = 1 cm."""
+def _wedge_raw(phi, friction):
     raw = {
         "model": {"formulation": "depth-averaged"},
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [3.0, 0.5], "cell_size_m": 0.01},
@@ -123,7 +122,13 @@ def _wedge(phi, friction=0.0, steps=1):
     }
     if phi is not None:
         raw["model"]["internal_friction_deg"] = phi
-    s = build(validate(raw))
+    return raw
+
+
+def _wedge(phi, friction=0.0):
+    """A 1 m block 0.1 m deep on a flat Coulomb bed whose columns' volumes rise linearly along x (depth slope
+    SLOPE), 8 columns a cell, h = 1 cm."""
+    s = build(validate(_wedge_raw(phi, friction)))
     x = s.state.x[:, 0]
     return s, s.state._replace(vol0=s.state.vol0 * (1.0 + SLOPE / 0.1 * (x - 1.0)))
 
@@ -170,6 +175,17 @@ def test_the_speed_has_the_derivative_of_its_finite_difference_through_the_coeff
     assert abs(float(jvp)) > 0.0 and float(jvp) == pytest.approx(fd, rel=1e-6)
 
 
+def test_a_fit_or_a_sweep_keeps_the_bed_friction_at_or_below_tan_phi():
+    """Savage & Hutter's k has an infinite derivative in the bed friction at delta = phi, and the scene refuses a
+    rougher bed: the friction's declared range and calibration's default search range end at tan(phi) there."""
+    import mpmjax
+
+    s, _ = _wedge(30.0, friction=0.1)
+    f = mpmjax.fit_parameters(s.params, validate(_wedge_raw(30.0, 0.1)))["friction"]
+    assert f.hi == f.bounds[1] == pytest.approx(math.tan(math.radians(30.0)), rel=1e-15)
+    assert mpmjax.fit_parameters(s.params)["friction"].bounds == (0.01, 1.5)  # without the scene: the default
+
+
 def test_the_time_step_takes_rankines_passive_wave_speed():
     plain, _ = _wedge(None)
     granular, _ = _wedge(30.0)
@@ -188,11 +204,17 @@ def test_the_time_step_takes_rankines_passive_wave_speed():
          r"'coulomb' or 'voellmy'"),
         ({"model": {"formulation": "depth-averaged", "internal_friction_deg": 10.0}},
          r"model.internal_friction_deg = 10.0 is invalid with terrain.friction = 0.3 \(a bed friction angle of "
-         r"16.7 deg\): allowed range \[16.7, 60\] deg"),
+         r"16.6992 deg, above it\).*allowed range \[16.6992, 60\] deg, or terrain.friction <= tan\(phi\) = "
+         r"0.176327"),
+        ({"model": {"formulation": "depth-averaged", "internal_friction_deg": 30.0}, "terrain": {"friction": 0.5774}},
+         r"model.internal_friction_deg = 30.0 is invalid with terrain.friction = 0.5774 \(a bed friction angle of "
+         r"30.0021 deg"),
+        ({"model": {"formulation": "depth-averaged", "internal_friction_deg": 50.0}, "terrain": {"friction": 2.0}},
+         r"allowed: terrain.friction <= tan\(60 deg\) = 1.73205 \(the largest internal friction angle\)"),
         ({"model": {"formulation": "depth-averaged", "internal_friction_deg": 75.0}},
          r"model.internal_friction_deg = 75.0 .*60"),
     ],
-    ids=["full-model", "no-coulomb-bed", "below-the-bed-friction", "above-60"],
+    ids=["full-model", "no-coulomb-bed", "below-the-bed-friction", "just-below", "bed-above-60", "above-60"],
 )
 def test_the_scene_refuses_it_where_it_has_no_meaning(change, match):
     raw = {

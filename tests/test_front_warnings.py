@@ -45,7 +45,7 @@ def test_depth_averaged_tip_creep_is_named_and_splitting_holds_it(tmp_path, caps
     (w,) = [w for w in held["warnings"] if "sparse_volume_fraction" in w]
     assert w.startswith("22 % of the volume at the end is in columns spread more than a cell apart")
     assert "raise numerics.split_levels (= 1)" in w
-    # those 34 columns are at the smallest volume one level allows, the seeded 0.2 m x h/3 over 2: alone on the grid
+    # those 26 columns are at the smallest volume one level allows, the seeded 0.2 m x h/3 over 2: alone on the grid
     # each reads V_p / h = 0.2 / 6 m, the thinnest layer they resolve, which one more level halves (a 1-D plan)
     assert held["sparse_column_depth_m"] == pytest.approx(0.2 / 6, rel=1e-5)
     assert "resolve layers down to about 0.0333 m" in w and "divides that by 2" in w

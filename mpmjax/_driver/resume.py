@@ -115,6 +115,9 @@ def check_same_scene(out: Path, ckpt: tuple, cfg: dict, chash: str, source: str,
     old = ckpt[3].get("cfg", {})
     diff = [k for k in sorted(set(old) | set(cfg)) if json.dumps(old.get(k)) != json.dumps(_jsonable(cfg.get(k)))]
     shown = ", ".join(f"{k}: {old.get(k)!r} in the checkpoint, {_jsonable(cfg.get(k))!r} now" for k in diff[:6])
+    added = sorted(set(cfg) - set(old))
+    if not shown and added:  # the same values, but keys this version of mpmjax has and the checkpoint's had not
+        shown = f"none in value, but the scene keys {', '.join(added[:6])} are newer than the checkpoint"
     raise SceneError(
         f"--resume {out}: the checkpoint was written for a different scene or different --set overrides "
         f"(checkpoint: {ckpt[3]['scene_source']} {ckpt[3]['overrides']}; now: {source} {overrides}); "

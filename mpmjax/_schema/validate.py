@@ -764,12 +764,20 @@ def _validate_formulation(out: dict, dim: int, given: dict):
                 f"{_show(out['terrain.type'])}: Savage & Hutter's coefficient needs the bed's Coulomb friction; "
                 "allowed: terrain.type = 'coulomb' or 'voellmy', or model.internal_friction_deg unset"
             )
-        delta = math.degrees(math.atan(out["terrain.friction"]))
-        if phi < delta:
+        friction = out["terrain.friction"]
+        if friction > math.tan(math.radians(phi)):  # the bed cannot be rougher than the material's own friction
+            delta = math.degrees(math.atan(friction))
+            allowed = (
+                f"allowed range [{delta:.6g}, 60] deg, or terrain.friction <= tan(phi) = "
+                f"{math.tan(math.radians(phi)):.6g}"
+                if delta <= 60.0
+                else f"allowed: terrain.friction <= tan(60 deg) = {math.tan(math.radians(60.0)):.6g} (the largest "
+                "internal friction angle)"
+            )
             raise SceneError(
-                f"model.internal_friction_deg = {_show(phi)} is invalid with terrain.friction = "
-                f"{_show(out['terrain.friction'])} (a bed friction angle of {delta:.4g} deg): allowed range "
-                f"[{delta:.4g}, 60] deg (the bed cannot be rougher than the material's own friction)"
+                f"model.internal_friction_deg = {_show(phi)} is invalid with terrain.friction = {_show(friction)} "
+                f"(a bed friction angle of {delta:.6g} deg, above it): the bed cannot be rougher than the material; "
+                f"{allowed}"
             )
     why = "(model.formulation = 'depth-averaged': docs/depth-averaged.md, 'Missing')"
     for key, val in _DA_FIXED.items():

@@ -207,10 +207,10 @@ def _plan_scene(res):
     """The built scene of a depth-averaged run, rebuilt from its saved configuration (the DEM's heights
     travel in it), so that its runout reads the step's own depth on the cells as summary.json's does;
     None for a full-model run.  Keys added to the schema after the file was written take their
-    defaults (but ``numerics.split_levels``, whose default became 1 later: such a file ran without
-    it); the NaN defaults saved as null are NaN again.  A float64 run is rebuilt in float32 where
-    float64 is off in this process (rebuilding must not switch it on; the front moves by float32
-    rounding only).  Where the saved scene cannot be rebuilt (a mesh body's file moved), None, with a
+    defaults (but ``numerics.split_levels`` and ``numerics.depth_layers``, whose defaults became 1 and 16
+    later: such a file ran without them); the NaN defaults saved as null are NaN again.  A float64 run is
+    rebuilt in float32 where float64 is off in this process (rebuilding must not switch it on; the front
+    moves by float32 rounding only).  Where the saved scene cannot be rebuilt (a mesh body's file moved), None, with a
     warning: the columns are then binned by position as before 2026-12-06."""
     saved = _cfg(res)
     if saved.get("model.formulation") != "depth-averaged":
@@ -219,6 +219,8 @@ def _plan_scene(res):
     cfg.update(saved)
     if "numerics.split_levels" not in saved:  # written before column splitting existed: a run without it
         cfg["numerics.split_levels"] = 0
+    if "numerics.depth_layers" not in saved:  # written before the layers existed: one value per column
+        cfg["numerics.depth_layers"] = 1
     for k in _NAN_DEFAULT:
         if cfg.get(k) is None:
             cfg[k] = math.nan
