@@ -129,3 +129,20 @@ def test_the_depth_averaged_dam_breaks_pass_at_their_full_size(tmp_path):
         assert rec["pass"] and len(rec["checks"]) == 3, rec
     assert doc["cases"]["da-granular-mangeney"]["earth_pressure_k"] == pytest.approx(0.4358, abs=1e-4)
 
+
+def test_a_set_that_only_one_formulation_takes_skips_the_other_formulations_cases(tmp_path, capsys):
+    """numerics.cell_shear is the full model's: the depth-averaged case refuses it and is recorded as rejected (not
+    run, no pass claimed) with the reason, the full-model case runs, and the command does not fail on it; a --set
+    that every asked-for case refuses still exits 2 (test_bad_set_exits_2_naming_the_key)."""
+    out = tmp_path / "v"
+    rc = main(["validate", "--size", "ci", "--case", "poiseuille", "da-ritter", "--set", "numerics.cell_shear=series",
+               "--out", str(out)])
+    assert rc == 0
+    assert "note: case da-ritter does not take --set numerics.cell_shear=series" in capsys.readouterr().err
+    doc = json.loads((out / "validate.json").read_text())
+    assert doc["cases"]["poiseuille"]["status"] == "ok"
+    rej = doc["cases"]["da-ritter"]
+    assert rej["status"] == "rejected" and rej["pass"] is None and "numerics.cell_shear" in rej["reason"]
+    assert main(["validate", "--size", "ci", "--case", "da-ritter", "--set", "numerics.cell_shear=series",
+                 "--out", str(tmp_path / "w")]) == 2
+
