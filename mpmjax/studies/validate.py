@@ -39,12 +39,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _slump, rheometer
+from .. import _earth_pressure, _slump, rheometer
 from .._build import build
 from .._io import _jsonable, atomic_write_text
 from .._metrics import RunoutGauge
 from .._rheology import coussot_mu
 from .._schema import SceneError, load_scene, validate
+from .._shallow import plan_depth
 from .._simulate import make_advance
 from .._step import make_step
 from . import converge, film, lubrication
@@ -906,9 +907,6 @@ def _da_break(granular: bool):
     Savage & Hutter's active k for the granular layer): the depth at the moving dam site against 4/9 H0, the point
     where the depth falls to H0/5 against x0 + m t^2/2 + c0 t (2 - 3 sqrt(1/5)) (as a share of the travel 2 c0 t),
     and the L1 error of the depth profile where the exact depth is at least H0/5."""
-    from .. import _earth_pressure
-    from .._shallow import plan_depth
-
     def cfgs(size, base):
         return [da_break_config(size, base, granular)]
 
