@@ -767,11 +767,12 @@ def _validate_formulation(out: dict, dim: int, given: dict):
         friction = out["terrain.friction"]
         if friction > math.tan(math.radians(phi)):  # the bed cannot be rougher than the material's own friction
             delta = math.degrees(math.atan(friction))
+            top = SCHEMA["model.internal_friction_deg"].hi  # the key's own range
             allowed = (
-                f"allowed range [{delta:.6g}, 60] deg, or terrain.friction <= tan(phi) = "
+                f"allowed range [{delta:.6g}, {top:g}] deg, or terrain.friction <= tan(phi) = "
                 f"{math.tan(math.radians(phi)):.6g}"
-                if delta <= 60.0
-                else f"allowed: terrain.friction <= tan(60 deg) = {math.tan(math.radians(60.0)):.6g} (the largest "
+                if delta <= top
+                else f"allowed: terrain.friction <= tan({top:g} deg) = {math.tan(math.radians(top)):.6g} (the largest "
                 "internal friction angle)"
             )
             raise SceneError(
