@@ -161,7 +161,7 @@ def test_split_levels_is_refused_in_the_full_model():
     # unset, the depth-averaged default (1) falls back to 0 in the full model, and the saved scene says so
     del raw["numerics"]
     assert validate(raw)["numerics.split_levels"] == 0
-    assert validate(dict(raw, model={"formulation": "depth-averaged"}))["numerics.split_levels"] == 1
+    assert validate(dict(raw, model={"formulation": "depth-averaged"}))["numerics.split_levels"] == 3
 
 
 def test_a_run_with_split_columns_saves_its_volumes(tmp_path):
