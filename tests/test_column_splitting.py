@@ -197,3 +197,31 @@ def test_a_run_with_split_columns_saves_its_volumes(tmp_path):
     assert summary["mass_final_kg"] == pytest.approx(summary["mass_initial_kg"], rel=1e-12)
     assert (vols[-1] * res["frames"]["active"][-1]).sum() == pytest.approx(0.03, rel=1e-12)
     np.testing.assert_allclose(runout(out)[1], summary["runout_m"], rtol=0, atol=1e-9)
+
+
+def test_the_command_line_steps_only_the_spare_slots_in_use():
+    """The command line's frame advance (``_simulate.StagedAdvance`` given the scene's pool) steps the seeded columns
+    and the part of the spare slots in use, on a few prefix sizes, and reruns a frame on the next size up where its
+    splits filled the prefix: the fast slump (20 Pa, 4 columns a cell, two levels, a pool of 0.5: 240 columns and 120
+    slots), 8 frames of 0.25 s, against the same frames on the whole buffer.  Equal to 1e-12 m (float64; programs
+    compiled for other array sizes may round differently), and both paths of the staging taken: frames on a prefix
+    short of the buffer and at least one rerun on a larger one (measured: 32 of the 120 slots used by 2 s,
+    on prefixes of 255 to 300, one rerun)."""
+    from mpmjax._simulate import StagedAdvance
+
+    cfg = _slump(20.0, 4, 2, 2.0, pool=0.5)
+    cfg["time.n_frames"] = 8
+    s = build(cfg)
+    N, pool = s.scene.n_particles, int(s.info["split_pool"])
+    assert (N, pool) == (360, 120)
+    staged = StagedAdvance(s.scene, min_size=8, split_pool=pool)
+    assert staged.split_sizes == (255, 270, 300)  # the seeded 240 and the pool's first eighth, quarter and half
+    whole = StagedAdvance(s.scene, staged=False)
+    a = b = s.state
+    for i in range(8):
+        a, b = whole(i, a, s.params), staged(i, b, s.params)
+        np.testing.assert_allclose(np.asarray(b.x), np.asarray(a.x), rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(np.asarray(b.vol0), np.asarray(a.vol0))
+        np.testing.assert_array_equal(np.asarray(b.active), np.asarray(a.active))
+    assert int(a.active.sum()) > 240  # it split
+    assert min(staged.schedule) < N and staged.fallbacks >= 1, (staged.schedule, staged.fallbacks)

@@ -31,12 +31,16 @@ def _compiled_advance(sc, state, params, n=None):
 def make_advance(setup, cfg: dict, staged: bool):
     """The frame advance of a built scene.  A pipe inflow's parked pool is stepped only once
     released: each frame steps the buffer prefix that holds every particle active by its end (a
-    few sizes; ``_simulate.StagedAdvance``).  With output.hazard_maps the maps are sampled
+    few sizes; ``_simulate.StagedAdvance``); so are the spare slots of column splitting, as far as
+    used (not with hazard maps: the whole buffer).  With output.hazard_maps the maps are sampled
     inside the compiled frame, an extra carry next to the state (``_hazard.HazardAdvance``)."""
     sc = setup.scene
     if cfg["output.hazard_maps"]:
         return _hazard.HazardAdvance(sc, setup.state, setup.params, _hazard.HazardGrid.of(sc, cfg))
-    return StagedAdvance(sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n))
+    return StagedAdvance(
+        sc, staged=staged, compile=lambda n: _compiled_advance(sc, setup.state, setup.params, n),
+        split_pool=int(setup.info.get("split_pool", 0)),
+    )
 
 
 def compile_advance(advance, first_frame: int) -> list:

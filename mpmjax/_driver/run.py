@@ -165,8 +165,9 @@ def _prepare(out, setup, cfg, ckpt, chash, source, overrides, staged, checkpoint
     advance = make_advance(setup, cfg, staged)
     sizes = compile_advance(advance, int(ckpt[1]) if ckpt is not None else 0)
     compile_s = time.perf_counter() - t0
+    what = "column splitting's spare slots staged" if getattr(advance, "split_sizes", ()) else "pipe pool staged"
     staged_note = (
-        f" (pipe pool staged: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
+        f" ({what}: frames step the first {', '.join(map(str, sizes))} of {sc.n_particles} particles)"
         if sizes and sizes != [sc.n_particles]  # none: resumed at the last frame, to write the outputs
         else ""
     )

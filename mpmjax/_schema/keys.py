@@ -196,7 +196,7 @@ _HEAD: dict[str, Key] = {
         "otherwise, and its sensitivities are wrong); at most this many halvings per plan axis below the median "
         "seeded column. 0: off. The default 3 since 2026-12-07 with numerics.split_pool 3 (1 and 1 before, 0 "
         "before 2026-12-06): at 2 columns a cell mpmjax validate's da-huppert reads -5.5 % with 1 and 1 (the pool "
-        "spent in the first 0.75 s) and -1.7 % with 3 and 3, and dambreak-lab as columns stops at 1.196 m with 1 "
+        "spent in the first 0.5 s) and -1.7 % with 3 and 3, and dambreak-lab as columns stops at 1.196 m with 1 "
         "and 1, 1.347 m (its resolved runout) with 3 and 3. The full model ignores the default and refuses any "
         "other value but 0. docs/depth-averaged.md, Column splitting.",
         lo=0,
@@ -225,10 +225,12 @@ _HEAD: dict[str, Key] = {
         3.0,
         "-",
         "With numerics.split_levels > 0: spare column slots for the children, as a multiple of the seeded columns "
-        "(each costs a step like a column, used or not; when they run out, splitting stops and the run says so). "
+        "(each costs a step like a column, used or not, in fits and sweeps; mpmjax run steps only those in use; "
+        "when they run out, splitting stops and the run says so). "
         "The default 3 since 2026-12-07 (1 before): the stretching current of mpmjax validate's da-huppert spent a "
-        "pool of 1 in its first 0.75 s, and dambreak-lab as columns uses 2.7 (163 of 180 slots) to resolve its "
-        "tip; a run that splits nothing still pays for the slots (coussot-film-da's loop 2.6x). field-breach-da "
+        "pool of 1 in its first 0.5 s, and dambreak-lab as columns uses 2.7 (163 of 180 slots) to resolve its "
+        "tip; a fit of a run that splits nothing still pays for them (coussot-film-da's loop 1.9-2.6x). "
+        "field-breach-da "
         "pins 1 for its 5-minute budget.",
         lo=0.0,
         lo_open=True,
