@@ -158,7 +158,7 @@ def test_split_levels_is_refused_in_the_full_model():
     }
     with pytest.raises(SceneError, match="numerics.split_levels = 1 is invalid with model.formulation = 'full'"):
         validate(raw)
-    # unset, the depth-averaged default (1) falls back to 0 in the full model, and the saved scene says so
+    # unset, the depth-averaged default (3) falls back to 0 in the full model, and the saved scene says so
     del raw["numerics"]
     assert validate(raw)["numerics.split_levels"] == 0
     assert validate(dict(raw, model={"formulation": "depth-averaged"}))["numerics.split_levels"] == 3

@@ -114,13 +114,12 @@ def test_ritter_dam_break_depth_and_front(ritter):
     x_num = xn[i] + (H[i] - 0.2 * H0) / (H[i] - H[i + 1]) * s.scene.h
     x_ex = X0 + c0 * T_R * (2 - 3 * math.sqrt(0.2))
     assert abs(x_num - x_ex) < 0.02 * 2 * c0 * T_R
-    # the farthest particle: near the exact front. With one level of column splitting (the default until 2026-12-07)
-    # it stayed behind it (the under-resolved tip); a split puts a child up to h/2 (``_split.OFFSET_MAX_CELLS``) ahead
-    # of its parent, and the tip's lineage splits at most split_levels times, so with the default 3 levels the bound
-    # is the front plus 3 h/2 (measured 2026-12-07: 1.1 cm ahead, 1.4 % of the travel)
+    # the farthest particle: near the exact front.  With one level of column splitting (the default until 2026-12-07)
+    # it stayed behind it (the under-resolved tip: -6.1 %); with the default 3 levels it runs +1.4 % of the travel
+    # ahead (measured 2026-12-07; more levels run it further: docs/depth-averaged.md, "Column splitting").  Bound:
+    # within the 2 % of the travel on either side of the front, and not 20 % short
     far = float(np.asarray(fin.x[:, 0]).max()) - X0
-    ahead = s.scene.split_levels * 0.5 * s.scene.h
-    assert 0.8 * 2 * c0 * T_R < far <= 2 * c0 * T_R + ahead
+    assert 0.8 * 2 * c0 * T_R < far <= 1.02 * 2 * c0 * T_R
 
 
 def test_the_map_of_a_ritter_dam_break_reads_the_exact_depth(tmp_path):
@@ -318,7 +317,7 @@ def test_bingham_slump_follows_the_lubrication_solution_to_its_static_front():
     rho g H dH/dx = -tau_y holding the block's area, which is also the depth-averaged model's static
     state.  At a Galileo number of 1 the approach to it is slow: the lubrication solution in time
     (``mpmjax.studies.lubrication``, the same block) is still 3.9 % short of x_inf at 100 s.
-    Measured at h = 5 mm, 4 columns a cell, with one level of column splitting (the default): the
+    Measured at h = 5 mm, 4 columns a cell, with one level of column splitting (the default until 2026-12-07): the
     headline front (free_surface_front, 10 % of the deepest) at 100 s -1.60 % of x_inf, ahead of the
     lubrication solution by 2.3 % of x_inf, its fastest column at 5.1e-5 m/s (the lubrication front's
     mean speed over 90-100 s: 9.1e-5 m/s); at 20 / 40 / 60 / 80 s -9.5 / -4.7 / -3.0 / -1.9 % against the lubrication

@@ -91,7 +91,7 @@ def test_a_pool_too_small_for_the_columns_that_want_to_split_is_named(tmp_path):
     assert 0.0 < share <= s["sparse_volume_fraction"] + 1e-12
     assert f"{100 * share:.2g} % of the volume" in w
     # and the volume left sparse is named, with what one more level would resolve: nearly all of it here (the
-    # pool let one of the 60 seeded columns split), each column at its seeded 0.2 m x h/3, alone on the grid
+    # pool let three of the 60 seeded columns split), each column at its seeded 0.2 m x h/3, alone on the grid
     # V_p / h = 0.2 / 3 m deep, which one more level halves (a 1-D plan)
     assert s["sparse_volume_fraction"] > 0.9
     assert s["sparse_column_depth_m"] == pytest.approx(0.2 / 3, rel=1e-5)

@@ -11,6 +11,8 @@ them (stop 65, 2026-12-07): one JSON line per run on stdout, float32 as the comm
         .venv/bin/python benchmarks/accuracy/da_split_default.py huppert $c
         .venv/bin/python benchmarks/accuracy/da_split_default.py lab $c
     done >> benchmarks/accuracy/da_split_default.jsonl
+    .venv/bin/python benchmarks/accuracy/da_split_default.py huppert 0 1.0 >> benchmarks/accuracy/da_split_default.jsonl
+    .venv/bin/python benchmarks/accuracy/da_split_default.py huppert 1 1.0 8 >> benchmarks/accuracy/da_split_default.jsonl
 
 docs/validate-depth-averaged.md, "The split's pool" has the table.
 """
@@ -47,7 +49,7 @@ if case == "huppert":
     exact = lubrication.HUPPERT_ETA * (V.G * V.HUPPERT_Q**3 * times[-1] / (3 * V.HUPPERT_NU)) ** 0.2
     line.update(ppc=ppc, t_s=times[-1], front_exact_m=exact, farthest_m=far, farthest_error=far / exact - 1,
                 columns_end=int(act.sum()), slots=int(s.scene.n_particles - np.sum(np.asarray(s.state.active))),
-                pool_spent_at_s=spent[0] if spent else None, loop_cpu_s=rec["cpu_s"])
+                pool_spent_at_s=spent[0] if spent and levels > 0 else None, loop_cpu_s=rec["cpu_s"])
 elif case == "lab":
     sets = ["model.formulation=depth-averaged", "time.n_frames=60"] + [f"{k}={v}" for k, v in split.items()]
     with tempfile.TemporaryDirectory() as d:

@@ -870,4 +870,8 @@ def validate(raw: dict) -> dict:
     _validate_release(out, dim, lo, hi, flat)
     _validate_axes(out, dim)
     _validate_formulation(out, dim, flat)
+    if out["numerics.split_levels"] == 0 and "numerics.split_pool" not in flat:
+        # no spare slots without splitting: the pool's default (3 since stop 65, 1 before) has nothing to size, so it
+        # is held at the old 1 there and the configuration (its hash: checkpoints, validate's records) does not move
+        out["numerics.split_pool"] = 1.0
     return out

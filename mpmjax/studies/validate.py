@@ -1280,7 +1280,8 @@ CASES: dict[str, Case] = {
             _film_da_cfgs,
             _film_da_run,
             "loop CPU measured on 2 shared cores, float32, 2026-12-07 (the two runs, 2448 steps): 1.0-1.2 s with "
-            "the default 16 layers, 0.6 s with one value per column",
+            "the default 16 layers, 0.6 s with one value per column; 2.8-3.8 s with the split's pool of 3 since "
+            "stop 65",
         ),
     )
 }
