@@ -53,6 +53,7 @@ from ._received import check
 from ._scene import Params, Scene, State
 from ._shard import AXIS
 from ._slab import make_slab_advance
+from ._split import spare_slots
 from ._step import make_step
 
 
@@ -351,16 +352,16 @@ def frame_program_args(scene: Scene, state: State, params: Params) -> tuple:
     return (state, params, np.int32(1)) if chunkable(scene) else (state, params)
 
 
-# prefix sizes of a split pool: the seeded columns and the pool's first 1/2^j, j = 0 .. SPLIT_STAGES - 1
+# prefix sizes of a split pool: the seeded columns and the pool's first 1/2^j, j = 1 .. SPLIT_STAGES - 1
 SPLIT_STAGES = 4
 
 
 def split_prefix_sizes(scene: Scene, pool: int, min_size: int = MIN_STAGE) -> tuple[int, ...]:
     """The buffer prefixes a depth-averaged scene that splits its columns (``numerics.split_levels`` > 0) steps,
-    ascending, below the whole buffer: the seeded columns (the buffer less its last ``pool`` spare slots) and the
-    first pool / 2^j slots, j = 1 .. SPLIT_STAGES - 1; none that leaves out fewer than ``min_size`` slots (below a
-    few hundred particles a step costs about the same, and each size is a compilation).  () where the scene does
-    not split or has no pool."""
+    ascending, below the whole buffer: the seeded columns (the buffer less its last ``pool`` spare slots) with the
+    pool's first pool / 2^j slots, j = 1 .. SPLIT_STAGES - 1; none that leaves out fewer than ``min_size`` slots
+    (below a few hundred particles a step costs about the same, and each size is a compilation).  () where the
+    scene does not split or has no pool."""
     N = scene.n_particles
     if scene.formulation != "depth-averaged" or scene.split_levels <= 0 or pool <= 0 or scene.inflow is not None:
         return ()
@@ -370,9 +371,9 @@ def split_prefix_sizes(scene: Scene, pool: int, min_size: int = MIN_STAGE) -> tu
 
 
 def _slots_in_use(state: State) -> int:
-    """One past the last slot of the buffer in use (active, or holding volume: a column gone through an open face
-    keeps its slot)."""
-    used = np.asarray(state.active) | (np.asarray(state.vol0) > 0)
+    """One past the last slot of the buffer in use (not a never-used spare slot, ``_split.spare_slots``: a column
+    gone through an open face keeps its slot)."""
+    used = ~np.asarray(spare_slots(state))
     return int(np.nonzero(used)[0][-1]) + 1 if used.any() else 0
 
 
@@ -457,8 +458,7 @@ class StagedAdvance:
             new = self._frame(self.program(n), state, params)
             if n >= N:
                 break
-            free = ~np.asarray(new.active[:n]) & (np.asarray(new.vol0[:n]) == 0)
-            if int(free.sum()) >= per:
+            if int(np.asarray(spare_slots(new))[:n].sum()) >= per:
                 break
             self.fallbacks += 1
         self._growth = _slots_in_use(new) - before

@@ -230,8 +230,7 @@ _HEAD: dict[str, Key] = {
         "The default 3 since 2026-12-07 (1 before): the stretching current of mpmjax validate's da-huppert spent a "
         "pool of 1 in its first 0.5 s, and dambreak-lab as columns uses 2.7 (163 of 180 slots) to resolve its "
         "tip; a fit of a run that splits nothing still pays for them (coussot-film-da's loop 1.9-2.6x). "
-        "field-breach-da "
-        "pins 1 for its 5-minute budget.",
+        "field-breach-da pins 1 for its 5-minute budget.",
         lo=0.0,
         lo_open=True,
         hi=64.0,
