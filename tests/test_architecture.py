@@ -113,19 +113,36 @@ STUDY_SCRIPTS = ("mpmjax.studies.fit_speed", "mpmjax.studies.hazard_cost")
 
 
 def test_every_module_imports_on_its_own():
-    # one interpreter (jax is imported once); our modules are dropped from sys.modules before each import
+    # One interpreter (jax is imported once); our modules are dropped from sys.modules before each
+    # import.  Importing ``a.b.c`` first imports its package ``a.b`` (and that ``a``), so where that
+    # package's own import already loads ``a.b.c``, importing ``a.b.c`` alone runs exactly the
+    # package's import: each package is imported alone once, and only the modules it does not load
+    # are imported alone after it: 26 imports instead of 106, and the test's CPU 14-16 s instead of
+    # 36-37 s (pytest's start included, alternating, 2026-12-07).
     code = (
         "import importlib, sys, traceback\n"
         f"mods = {sorted(MODULES)!r}\n"
+        "done = {}\n"
+        "def alone(name):\n"
+        "    if name not in done:\n"
+        "        for k in [k for k in sys.modules if k.split('.')[0] in ('mpmjax', 'calibration')]:\n"
+        "            del sys.modules[k]\n"
+        "        try:\n"
+        "            importlib.import_module(name)\n"
+        "            done[name] = None, set(sys.modules)\n"
+        "        except Exception:\n"
+        "            done[name] = traceback.format_exc(limit=3), set()\n"
+        "    return done[name]\n"
         "bad = []\n"
         "for m in mods:\n"
-        "    for k in [k for k in sys.modules if k.split('.')[0] in ('mpmjax', 'calibration')]:\n"
-        "        del sys.modules[k]\n"
-        "    try:\n"
-        "        importlib.import_module(m)\n"
-        "    except Exception:\n"
-        "        bad.append(m + ': ' + traceback.format_exc(limit=3))\n"
+        "    parent = m.rpartition('.')[0]\n"
+        "    err, loaded = alone(parent) if parent else (None, set())\n"
+        "    if m not in loaded and not err:\n"
+        "        err = alone(m)[0]\n"
+        "    if err:\n"
+        "        bad.append(m + ': ' + err)\n"
         "print('\\n'.join(bad))\n"
+        "print('imported alone:', len(done), 'of', len(mods), 'modules and packages', file=sys.stderr)\n"
         "sys.exit(1 if bad else 0)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=600)
