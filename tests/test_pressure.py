@@ -216,6 +216,7 @@ def test_the_bulk_modulus_may_be_left_out_where_nothing_reads_it(tmp_path, capsy
     scene.write_text(
         "[domain]\ndim = 2\nlo_m = [0.0, 0.0]\nhi_m = [0.4, 0.4]\ncell_size_m = 0.1\n"
         "[time]\nt_end_s = 0.02\nn_frames = 1\n"
+        '[numerics]\npressure = "explicit"\n'  # said, not left to the schema default
         '[material]\nmodel = "newtonian"\ndensity_kg_m3 = 1500.0\nviscosity_pa_s = 1.0\n'
         "[[bodies]]\nlo_m = [0.0, 0.0]\nhi_m = [0.4, 0.2]\n"
     )
