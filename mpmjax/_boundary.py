@@ -105,8 +105,22 @@ def navier_slip(v, nrm, v_inner, b_over_h: float):
     return (b_over_h / (1.0 + b_over_h)) * vt
 
 
-def terrain_velocity(v, nrm, terrain):
-    """Nodal velocity after the terrain condition; ``nrm`` (N, dim) per-node unit normals."""
+def _friction_scale(vt, inward, friction):
+    """Coulomb: the factor on the tangential velocity ``vt`` that reduces its speed by friction x the removed
+    normal speed |``inward``|, at most to zero."""
+    speed = jnp.sqrt(jnp.sum(vt * vt, axis=1))
+    moving = speed > 0.0
+    return jnp.where(moving, jnp.maximum(0.0, 1.0 - friction * (-inward) / jnp.where(moving, speed, 1.0)), 0.0)
+
+
+def terrain_velocity(v, nrm, terrain, push=None):
+    """Nodal velocity after the terrain condition; ``nrm`` (N, dim) per-node unit normals.
+
+    ``push`` (N, dim), Coulomb only: a velocity change the node gets after this condition from a force the
+    terrain resists too (the grid pressure's, the last step's: ``_pressure.make_projection``'s ``contact``).
+    The friction then acts on v + push, the velocity the node is about to have, normal and tangential, and
+    the push's tangential part is taken off again (the caller adds this step's); the normal is v's less its
+    inward part, as for slip."""
     if terrain.kind == "noslip":
         return jnp.zeros_like(v)
     n = jnp.asarray(nrm, v.dtype)
@@ -115,11 +129,16 @@ def terrain_velocity(v, nrm, terrain):
     v_s = v - inward[:, None] * n
     if terrain.kind == "slip":
         return v_s
+    if push is not None:
+        u = v + push
+        un = jnp.sum(u * n, axis=1)
+        ut = u - un[:, None] * n
+        pt = push - jnp.sum(push * n, axis=1)[:, None] * n
+        scale = _friction_scale(ut, jnp.minimum(un, 0.0), terrain.friction)
+        return scale[:, None] * ut - pt + jnp.maximum(vn, 0.0)[:, None] * n
     # coulomb: tangential speed reduced by friction x |removed normal speed|, at most to zero
     vt = v_s - jnp.sum(v_s * n, axis=1)[:, None] * n
-    speed = jnp.sqrt(jnp.sum(vt * vt, axis=1))
-    moving = speed > 0.0
-    scale = jnp.where(moving, jnp.maximum(0.0, 1.0 - terrain.friction * (-inward) / jnp.where(moving, speed, 1.0)), 0.0)
+    scale = _friction_scale(vt, inward, terrain.friction)
     return v_s - (1.0 - scale)[:, None] * vt
 
 

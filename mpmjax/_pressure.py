@@ -34,9 +34,8 @@ Here B v is the cell's volume rate, the integral over the cell of div v with the
 corner's sign vector; B^T p is the nodal force of the cell pressures.  S = P P^T with P the walls'
 linear conditions (noslip and the pipe's driven nodes: 0; slip, symmetry, Navier slip, slip and
 Coulomb terrain: remove the normal component), so A is symmetric positive semi-definite and the
-correction obeys the walls (a slip wall's separation and Coulomb friction are applied after it;
-with Coulomb terrain the correction is applied unprojected, so that the friction sees the pressure's
-normal impulse, and P after the friction: ``make_projection``'s ``constrained``).
+correction obeys the walls (a slip wall's separation is applied after it; Coulomb friction before
+it, resisting the last step's pressure push as well: ``make_projection``'s ``contact``).
 
 Why Q1-P0: one pressure per cell against 2^d velocity nodes is one constraint per cell, a count
 that does not lock (the particles' J is a constraint per particle, ppc^d of them per cell: it
@@ -220,18 +219,17 @@ def make_projection(
     linear_conditions,
     fill: np.ndarray,
     maxiter: int = CG_MAXITER,
-    constrained: bool = True,
     operator: str | None = None,
 ):
-    """``project(v_star, mass, inv_m, has, params, p_prev=None) -> (v, p, (A, b))``: the pressure
-    step of the module docstring on the whole grid (flat node arrays (N,), (N, dim); p per cell,
-    ``grid_shape``; A and b the solved system, for diagnostics).  ``p_prev``: the last step's
-    pressure, the solve's start where it is not zero.
+    """``project(v_star, mass, inv_m, has, params, p_prev=None, t=0.0, contact=None) -> (v, p, d, (A, b))``:
+    the pressure step of the module docstring on the whole grid (flat node arrays (N,), (N, dim); p per
+    cell, ``grid_shape``; d the position closure's displacement or None; A and b the solved system, for
+    diagnostics).  ``p_prev``: the last step's pressure, the solve's start where it is not zero.
 
-    ``constrained=False``: v = v* + dt m^-1 B^T p without the walls' P, for a caller that applies its
-    walls' conditions to it afterwards (equal to P of it where those conditions are P's; Coulomb
-    terrain, which is not linear, then sees the pressure's normal impulse at its nodes and resists
-    sliding with it, as in the explicit step, where the particles' pressure reaches the wall nodes).
+    ``contact(v_star, push) -> v_star``: the walls' conditions of a caller with Coulomb terrain, applied to
+    v* before the solve; push = dt m^-1 B^T p_prev, the last step's pressure's velocity change, unprojected,
+    which the friction resists as well (``_boundary.terrain_velocity``), as the explicit step's friction
+    resists the particles' pressure of the step's start.
 
     ``linear_conditions(v) -> P v``: the walls' conditions, linear (``_step._linear_conditions``);
     ``fill``: the static ``_boundary.node_fill`` (N,).  ``operator``: how A is applied (``OPERATOR``, by
@@ -405,7 +403,7 @@ def make_projection(
             m = jnp.where(inside, m + acc, jnp.where(new, 0.0, m))
         return m
 
-    def project(v_star, mass, inv_m, has, params, p_prev=None, t=0.0):
+    def project(v_star, mass, inv_m, has, params, p_prev=None, t=0.0, contact=None):
         dtp = v_star.dtype
         mat = params.material
         rho = mat.rho
@@ -431,6 +429,12 @@ def make_projection(
             def S(fs):
                 return [sum(W[a][b] * fs[b] for b in range(dim)) for a in range(dim)]
 
+        if contact is not None:
+            # Coulomb contact: the friction resists the last step's pressure push as well, and acts before this
+            # step's solve, so that the solved field keeps every cell's volume with the friction in it
+            last = jnp.zeros(shape, dtp) if p_prev is None else jnp.where(fluid, p_prev, 0.0)
+            push = extend([m_g * c for c in grad(last)], ring_list, dtp)
+            v_star = contact(v_star, scene.dt * push)
         vs = [v_star[:, a].reshape(shape) for a in range(dim)]
         # the volume error: overpacking, corrected over the free-fall time across a cell, sqrt(h/|g|), not in
         # one step (the packing fluctuates by a few per cent as particles cross cells; a one-step correction
@@ -523,8 +527,8 @@ def make_projection(
                 due = jnp.round(t / scene.dt).astype(jnp.int32) % POSITION_EVERY == 0
                 q = jax.lax.cond(due, lambda r: solve(r, jnp.zeros_like(r)), jnp.zeros_like, b_x)
         p = jnp.where(fluid, p, 0.0)
-        dv = extend(S(grad(p)) if constrained else [m_g * c for c in grad(p)], ring_list, dtp)
-        if constrained and mirror is not None:  # a mirror image's normal component is no wall's
+        dv = extend(S(grad(p)), ring_list, dtp)
+        if mirror is not None:  # a mirror image's normal component is no wall's
             dv = linear_conditions(dv)
         v = v_star + scene.dt * dv
         v = jnp.where(has[:, None], v, 0.0)

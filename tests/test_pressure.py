@@ -395,28 +395,50 @@ def test_terrain_counts_in_the_packing_as_a_floor_does():
     assert not valid[:, :k].any()
 
 
-def test_coulomb_terrain_resists_with_the_pressure_normal_force():
-    # a block (mu = 1e4 Pa s) on a flat Coulomb terrain under gravity tilted 20 degrees, friction
-    # 0.5 > tan(20) = 0.36: the base must hold.  The terrain carries the block's weight through the
-    # grid pressure; with the correction projected before the friction saw it, the base resisted only
-    # its own nodes' weight and the block slid (measured 0.87 m/s at 0.4 s, 2.2 m/s^2).  Now: 2.6 mm/s
-    # at 0.4 s, the rest of the motion the block's elastic sag at the default G = rho v^2 (about 2 kPa);
-    # a free slide would be g sin(20) t = 1.34 m/s -> bound 1 cm/s on the last frame and 2 cm of travel
+def _coulomb_block(friction, G=0.0):
+    """A block (mu = 1e4 Pa s) on a flat Coulomb terrain under gravity tilted 20 degrees, 0.4 s:
+    (times, mean velocity along the slope per frame, final state, initial state)."""
     raw = {
         "domain": {"lo_m": [0.0, 0.0], "hi_m": [1.6, 0.4], "cell_size_m": 0.02},
-        "numerics": {"ppc": 2, "dtype": "float64", "pressure": "incompressible"},
+        "numerics": {"ppc": 2, "dtype": "float64", "pressure": "incompressible", "maxwell_shear_modulus_pa": G},
         "time": {"t_end_s": 0.4, "n_frames": 4},
         "material": {"model": "newtonian", "density_kg_m3": 1000.0, "bulk_modulus_pa": 1e5, "viscosity_pa_s": 1e4},
         "gravity": {"slope_deg": 20.0},
-        "terrain": {"type": "coulomb", "heights_m": [0.1, 0.1, 0.1], "spacing_m": 0.8, "friction": 0.5},
+        "terrain": {"type": "coulomb", "heights_m": [0.1, 0.1, 0.1], "spacing_m": 0.8, "friction": friction},
         "bodies": [{"type": "box", "lo_m": [0.2, 0.1], "hi_m": [0.4, 0.2]}],
     }
     s = m.build(m.validate(raw))
     final, fr = m.run(s.scene, s.state, s.params)
-    v = np.asarray(fr.v)[:, :, 0].mean(axis=1)
-    travel = float(np.asarray(final.x)[:, 0].mean() - np.asarray(s.state.x)[:, 0].mean())
+    return np.asarray(fr.t), np.asarray(fr.v)[:, :, 0].mean(axis=1), final, s.state
+
+
+def test_coulomb_terrain_resists_with_the_pressure_normal_force():
+    # friction 0.5 > tan(20) = 0.36: the base must hold.  The terrain carries the block's weight through the
+    # grid pressure; with the correction projected before the friction saw it, the base resisted only its own
+    # nodes' weight and the block slid (measured 0.87 m/s at 0.4 s, 2.2 m/s^2).  The friction now resists the
+    # last step's pressure push (2026-12-07): 5.0 mm/s at 0.4 s (2.5 mm/s with this step's push after the
+    # solve, the order before), the rest of the motion the block's elastic sag and ringing at the default
+    # G = rho v^2 (about 2 kPa); a free slide would be g sin(20) t = 1.34 m/s -> bound 1 cm/s on the last
+    # frame and 2 cm of travel
+    _, v, final, start = _coulomb_block(0.5)
+    travel = float(np.asarray(final.x)[:, 0].mean() - np.asarray(start.x)[:, 0].mean())
     assert abs(v[-1]) < 0.01, v
     assert abs(travel) < 0.02, travel
+
+
+def test_a_stiff_block_slides_on_coulomb_terrain_with_the_grid_pressure():
+    # The same block made stiff (G = 100 kPa, as the explicit pressure's G = kappa) at friction 0.2 slides at
+    # g (sin 20 - 0.2 cos 20) = 1.51 m/s^2.  With the friction applied after the solve with that step's push, a
+    # shear oscillation of the block on its base grew until every particle was lost at 0.2 s (sooner on a finer
+    # grid; docs/incompressible-default.md, "The fourth trial"); the explicit step with the block nearly
+    # incompressible (kappa = 1 MPa) reads +5.5 / +4.5 / +2.6 % at 0.1 / 0.2 / 0.4 s.  Measured now: +6.9 /
+    # +4.6 / +3.9 / +4.2 % at 0.1 / 0.2 / 0.3 / 0.4 s (the friction follows the normal load's elastic ringing,
+    # a step late) and +3.7 % on the acceleration from 0.2 to 0.4 s -> bounds 9 % and 6 %
+    t, v, final, _ = _coulomb_block(0.2, G=1e5)
+    a = 9.81 * (np.sin(np.radians(20.0)) - 0.2 * np.cos(np.radians(20.0)))
+    assert int(final.n_lost) == 0 and np.isfinite(np.asarray(final.x)).all()
+    np.testing.assert_allclose(v, a * t, rtol=0.09)
+    assert (v[-1] - v[1]) / (t[-1] - t[1]) == pytest.approx(a, rel=0.06)
 
 
 def test_float32_reverse_mode_through_the_solve_equals_forward_mode():
