@@ -108,9 +108,12 @@ def navier_slip(v, nrm, v_inner, b_over_h: float):
 def _friction_scale(vt, inward, friction):
     """Coulomb: the factor on the tangential velocity ``vt`` that reduces its speed by friction x the removed
     normal speed |``inward``|, at most to zero."""
-    speed = jnp.sqrt(jnp.sum(vt * vt, axis=1))
-    moving = speed > 0.0
-    return jnp.where(moving, jnp.maximum(0.0, 1.0 - friction * (-inward) / jnp.where(moving, speed, 1.0)), 0.0)
+    s2 = jnp.sum(vt * vt, axis=1)
+    moving = s2 > 0.0
+    # the square root of the masked value: sqrt's derivative at a node at rest would be inf, and 0 * inf = NaN
+    # in reverse mode (a grid pressure's push reaches nodes with no mass, unmasked)
+    speed = jnp.sqrt(jnp.where(moving, s2, 1.0))
+    return jnp.where(moving, jnp.maximum(0.0, 1.0 - friction * (-inward) / speed), 0.0)
 
 
 def terrain_velocity(v, nrm, terrain, push=None):

@@ -528,7 +528,9 @@ def make_projection(
                 q = jax.lax.cond(due, lambda r: solve(r, jnp.zeros_like(r)), jnp.zeros_like, b_x)
         p = jnp.where(fluid, p, 0.0)
         dv = extend(S(grad(p)), ring_list, dtp)
-        if mirror is not None:  # a mirror image's normal component is no wall's
+        # a mirror image's normal component is no wall's; with contact, neither is a ring node's (the mean of its
+        # neighbours' corrections) at or below the terrain, which the friction after the solve would resist again
+        if mirror is not None or contact is not None:
             dv = linear_conditions(dv)
         v = v_star + scene.dt * dv
         v = jnp.where(has[:, None], v, 0.0)
