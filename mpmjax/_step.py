@@ -70,8 +70,9 @@ def _linear_conditions(walls, terrain, t_mask, t_nrm, pipe):
     """The walls' conditions as a linear projection P (the pressure solve's, ``_pressure``):
     noslip and the pipe's driven nodes v = 0; every other wall and terrain kind removes the
     normal component (a slip wall's separation and a Navier wall's slip are the step's own, applied
-    after the solve; Coulomb friction too, before it: ``_pressure.make_projection``'s ``contact``).  ``t_mask``, ``t_nrm``: the terrain's nodes and
-    normals as ``make_step`` has them; ``pipe``: the pipe's driven nodes or None."""
+    after the solve; Coulomb friction too, before it: ``_pressure.make_projection``'s ``contact``).
+    ``t_mask``, ``t_nrm``: the terrain's nodes and normals as ``make_step`` has them; ``pipe``: the
+    pipe's driven nodes or None."""
 
     def P(v):
         for mask, nrm, wall in walls:
