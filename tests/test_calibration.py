@@ -215,13 +215,20 @@ def _flow_curve_twin():
     return base, exp, ParameterSet.from_names(["mu0", "n", "alpha"], base, init={"mu0": 8.0, "n": 5.0, "alpha": 0.5})
 
 
-def test_fit_recovers_flow_curve_parameters_from_a_factor_two_guess():
+@pytest.fixture(scope="module")
+def flow_curve_lbfgs():
+    """(base, experiment, pset, a tightly converged L-BFGS fit) of ``_flow_curve_twin``: one fit for the two
+    tests below (the recovery, and the reference of Levenberg-Marquardt's)."""
+    base, exp, ps = _flow_curve_twin()
+    return base, exp, ps, fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
+
+
+def test_fit_recovers_flow_curve_parameters_from_a_factor_two_guess(flow_curve_lbfgs):
     """Flow-curve twin: 12 noisy points (2 % noise) of the BASE flow curve; fit mu0, n and
     alpha (T fixed: the curve depends on alpha*T only).  The loss must fall by > 95 % and
     the parameters come back within 3 standard deviations of the Gauss-Newton estimate
     (the 99.7 % band of a well-posed linearised fit)."""
-    base, exp, ps = _flow_curve_twin()
-    r = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
+    base, exp, ps, r = flow_curve_lbfgs
     assert r.loss_final < 0.05 * r.loss_initial
     u = gauss_newton([exp], ps, r.params)
     for i, k in enumerate(u.names):
@@ -232,15 +239,14 @@ def test_fit_recovers_flow_curve_parameters_from_a_factor_two_guess():
     assert r3.loss_final == pytest.approx(r.loss_final, rel=1e-6)
 
 
-def test_levenberg_marquardt_reaches_the_lbfgs_optimum_in_fewer_evaluations():
+def test_levenberg_marquardt_reaches_the_lbfgs_optimum_in_fewer_evaluations(flow_curve_lbfgs):
     """method="lm" (optimistix's Levenberg-Marquardt on the residual vector, Jacobian in forward
     mode) on the flow-curve twin above: the same minimum as a tightly converged L-BFGS (loss to
     1e-6 relative, parameters to 1e-3: the optimum is well-posed, and both stop within a
     relative loss change of 1e-10 of it), meeting its own stated criterion ("rtol": MINPACK's
     ftol test), with at most 0.6 times the model evaluations (Gauss-Newton steps converge
     quadratically on a small-residual problem; L-BFGS builds its curvature from gradients)."""
-    _, exp, ps = _flow_curve_twin()
-    ref = fit([exp], ps, method="lbfgs", max_iter=200, rtol=1e-10, patience=5, progress=False)
+    _, exp, ps, ref = flow_curve_lbfgs
     r = fit([exp], ps, method="lm", max_iter=100, rtol=1e-10, progress=False)
     assert r.converged and r.reason == "rtol", r.reason
     assert r.loss_final == pytest.approx(ref.loss_final, rel=1e-6)
@@ -282,8 +288,15 @@ def test_levenberg_marquardt_stops_by_patience_where_the_linear_model_never_conv
 SMALL = ["domain.cell_size_m=0.06", "time.t_end_s=0.3", "time.n_frames=3"]
 
 
-def test_sweep_batched_equals_one_by_one():
-    res = sweep(TWIN, {"mu0": [2.0, 6.0], "n": [2.0, 3.0]}, overrides=SMALL, chunk=3, progress=False)
+@pytest.fixture(scope="module")
+def small_sweep():
+    """Four cases (mu0 x n) of the coarse twin in batches of 3 on this process's one device (two batches, the
+    second padded): run once, checked against one-by-one runs and against the same sweep on two devices."""
+    return sweep(TWIN, {"mu0": [2.0, 6.0], "n": [2.0, 3.0]}, overrides=SMALL, chunk=3, progress=False)
+
+
+def test_sweep_batched_equals_one_by_one(small_sweep):
+    res = small_sweep
     assert res["chunk"] == 3 and len(res["cases"]) == 4  # two batches, the second padded
     setup = m.build(m.load_scene(TWIN, SMALL))
     for i, c in enumerate(res["cases"]):
@@ -346,21 +359,23 @@ def test_a_sweep_of_the_basal_friction_equals_one_by_one(tmp_path, capsys):
     assert r[(0.1, 100.0)] < r[(0.1, 400.0)] and r[(0.3, 100.0)] < r[(0.3, 400.0)]
 
 
-def test_sweep_sharded_over_two_host_devices_equals_one_device(tmp_path):
+def test_sweep_sharded_over_two_host_devices_equals_one_device(small_sweep):
+    """The same four cases in one batch of 4 split over two host devices (a subprocess: the device count is
+    fixed when jax starts) equal the one-device sweep of this process (``small_sweep``, batches of 3) to
+    rounding.  Measured: identical; also to a one-device batch of 4 (2026-12-08)."""
     code = (
         "import json, sys; from calibration.sweep import sweep; import jax; "
         f"r = sweep({TWIN!r}, {{'mu0': [2.0, 6.0], 'n': [2.0, 3.0]}}, overrides={SMALL!r}, chunk=4, progress=False); "
-        "print(json.dumps({'n_dev': jax.device_count(), 'runout': [float(v) for v in r['final_runout_m']]}))"
+        "print(json.dumps({'n_dev': jax.device_count(), 'chunk': r['chunk'], "
+        "'runout': [float(v) for v in r['final_runout_m']]}))"
     )
-    outs = []
-    for n in (1, 2):
-        flags = os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={n}"
-        env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
-        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
-        assert p.returncode == 0, p.stderr[-2000:]
-        outs.append(json.loads(p.stdout.strip().splitlines()[-1]))
-    assert [o["n_dev"] for o in outs] == [1, 2]
-    np.testing.assert_allclose(outs[1]["runout"], outs[0]["runout"], rtol=1e-12)
+    flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    assert (small_sweep["n_devices"], out["n_dev"], out["chunk"]) == (1, 2, 4)  # 2 lanes per device
+    np.testing.assert_allclose(out["runout"], small_sweep["final_runout_m"], rtol=1e-12)
 
 
 def test_sweep_errors():
@@ -401,17 +416,23 @@ def test_calibrate_cli_bad_input_exits_2(tmp_path, capsys):
     assert _cli("sweep", TWIN, "--vary", "n=1,x", "--out", str(tmp_path / "s")) == 2
 
 
-def test_sweep_cli_writes_table_json_and_plots(tmp_path):
+def test_sweep_cli_writes_table_json_and_plots(tmp_path, small_sweep):
+    """``mpmjax sweep`` of the four cases of ``small_sweep``, in the same batches of 3 (the same compiled
+    programs): the table, the JSON and the plot, with the Python sweep's runouts."""
     out = tmp_path / "sw"
-    args = ["sweep", TWIN, "--vary", "n=2,3", "--quiet", "--out", str(out)]
+    args = ["sweep", TWIN, "--vary", "mu0=2,6", "--vary", "n=2,3", "--chunk", "3", "--quiet", "--out", str(out)]
     for s in SMALL:
         args += ["--set", s]
     assert _cli(*args) == 0
     rows = (out / "sweep.csv").read_text().splitlines()
-    assert rows[0] == "n,final_runout_m,time_to_rest_s,n_lost" and len(rows) == 3
+    assert rows[0] == "mu0,n,final_runout_m,time_to_rest_s,n_lost" and len(rows) == 5
     doc = json.loads((out / "sweep.json").read_text())
     assert doc["units"]["final_runout_m"] == "m" and len(doc["runout_m"][0]) == 4  # frames 0..3
-    assert all(0.2 < float(r.split(",")[1]) < 0.9 for r in rows[1:])  # between the block and the far wall
+    runout = [float(r.split(",")[2]) for r in rows[1:]]
+    assert all(0.2 < v < 0.9 for v in runout)  # between the block and the far wall
+    # the same cases, batches and programs as the Python sweep: equal (the table keeps 6 significant digits)
+    np.testing.assert_allclose(doc["final_runout_m"], small_sweep["final_runout_m"], rtol=1e-12)
+    np.testing.assert_allclose(runout, small_sweep["final_runout_m"], rtol=0, atol=5e-7)
     assert (out / "sweep_runout.png").stat().st_size > 1000
 
 
@@ -491,8 +512,9 @@ def test_forward_mode_gradient_equals_reverse_mode():
     e = ProfileExperiment(s, [Profile(x, np.full(12, 0.02), 0.3, np.full(12, 0.002))], bandwidth_m=0.06)
     ps = ParameterSet.from_names(["mu0", "n", "lambda0"], s.params.material, init={"mu0": 6.0})
     z = jnp.stack([ps.z0(jnp.float64), ps.z0(jnp.float64) + 0.3])
-    rev = jax.vmap(jax.value_and_grad(loss_function([e], ps, "reverse")))(z)
-    fwd = jax.vmap(jax.value_and_grad(loss_function([e], ps, "forward")))(z)
+    # jitted, as fit compiles them (calibration.fit.Objective): one program each, not hundreds of eager ones
+    rev = jax.jit(jax.vmap(jax.value_and_grad(loss_function([e], ps, "reverse"))))(z)
+    fwd = jax.jit(jax.vmap(jax.value_and_grad(loss_function([e], ps, "forward"))))(z)
     np.testing.assert_allclose(fwd[0], rev[0], rtol=1e-12)
     np.testing.assert_allclose(fwd[1], rev[1], rtol=1e-9, atol=1e-12 * float(jnp.abs(rev[1]).max()))
     assert float(jnp.abs(rev[1]).min()) > 0

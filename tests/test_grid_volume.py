@@ -41,8 +41,14 @@ def _box(shape: str, ppc: int, dim: int = 2):
 
 def _phi(setup, state):
     sc = setup.scene
-    mass, _, _, st = make_p2g(sc)(state, setup.params)
-    return np.asarray(packing_fraction(sc, mass, st, setup.params.material.rho, node_fill(sc)))
+
+    def phi(state, params):
+        mass, _, _, st = make_p2g(sc)(state, params)
+        return packing_fraction(sc, mass, st, params.material.rho, node_fill(sc))
+
+    # jitted: one program per scene, where op-by-op dispatch compiles each operation on its own
+    # (the filled-box cases took 2.4x the CPU so, measured 14.1 against 5.8 s)
+    return np.asarray(jax.jit(phi)(state, setup.params))
 
 
 @pytest.mark.parametrize(

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -19,18 +21,22 @@ from mpmjax._build import build, memory_estimate
 
 ROOT = Path(__file__).resolve().parent.parent
 
-# Runs in a fresh process with 3 host devices.  The lab dam break at h = 0.02 m, float64, 0.15 s
-# (119 steps), from its state less the last particle (399), on one device and on 2 slabs:
-# * "slab": rebalanced every REBALANCE_STEPS (32) steps, so 3 rebalancings and a last block of 23;
-# * "fixed": one block of 119 steps (REBALANCE_STEPS raised), the slab edges of t = 0 kept
+# Runs in a fresh process with 3 host devices.  The lab dam break at h = 0.02 m, float64, 0.161 s
+# (128 steps), from its state less the last particle (399), on one device and on 2 slabs:
+# * "slab": rebalanced every REBALANCE_STEPS (32) steps, so 4 blocks of 32 (3 rebalancings after the
+#   first dealing); no remainder block, which would compile a second block into each slab program;
+# * "fixed": one block of 128 steps (REBALANCE_STEPS raised), the slab edges of t = 0 kept
 #   throughout, so the particles that cross the edge reach the other device only by migration;
 #   "crossed" counts them (the device they sit on under the first edges, at the start and at the end);
+#   the final states of the gradient's programs below (its auxiliary output: the same forward pass);
 # * "jbar": the J-bar volume averaging (a second grid sum through the halo) with the
 #   boundary-modified quadratic B-spline (box-wall index arithmetic in the stencil);
 # * "starved": slab_capacity 0.8, so 2 devices have slots for 2 x 160 = 320 of the 399: the rest are
-#   dropped at the first rebalancing, which the lost count must say;
+#   dropped at the first dealing, which the lost count must say; 64 steps, 2 blocks: the rebalancing
+#   at step 32 drops no more (measured: by step 96, with the column spread, 9 more are dropped);
 # * "three": 3 slabs: the column fills a third of the grid, so the slab edges crowd into it.
-# And d(mean x)/d mu0 by reverse mode over the 119 steps with the t = 0 edges kept (so that particles
+# "slab", "starved" (its lost count) and "three" share one one-device run (the same program and state).
+# And d(mean x)/d mu0 by reverse mode over the 128 steps with the t = 0 edges kept (so that particles
 # migrate under the derivative), slabs against one device.
 _CODE = """
 import json, jax, jax.numpy as jnp, numpy as np
@@ -38,16 +44,14 @@ from mpmjax import _slab
 from mpmjax._build import build, memory_estimate
 from mpmjax._schema import load_scene
 from mpmjax._simulate import make_chunk
-ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.15", "time.n_frames=1", "numerics.dtype=float64", "numerics.ppc=2",
+ov = ["domain.cell_size_m=0.02", "time.t_end_s=0.161", "time.n_frames=1", "numerics.dtype=float64", "numerics.ppc=2",
       "numerics.devices=2", "numerics.decomposition=slab", "numerics.pressure=explicit"]
 out = {"n_dev": jax.device_count()}
 def cut(setup):
     n = setup.scene.n_particles
     return jax.tree_util.tree_map(lambda a: a[:-1] if a.ndim and a.shape[0] == n else a, setup.state)
-def pair(sc, s0, p, n):
-    one = jax.jit(make_chunk(sc.replace(devices=1), n))(s0, p)
-    two = jax.jit(make_chunk(sc, n))(s0, p)
-    return one, two
+def run(sc, s0, p, n=None):
+    return jax.jit(make_chunk(sc, n or sc.n_steps))(s0, p)
 def diff(one, two, s0):
     return {"dx": float(np.abs(np.asarray(two.x) - np.asarray(one.x)).max()),
             "dJ": float(np.abs(np.asarray(two.J) - np.asarray(one.J)).max()),
@@ -57,35 +61,20 @@ def diff(one, two, s0):
 setup = build(load_scene("dambreak-lab", ov))
 sc, p, s0 = setup.scene, setup.params, cut(setup)
 out["steps"], out["n"] = sc.n_steps, int(s0.x.shape[0])
-one, two = pair(sc, s0, p, sc.n_steps)
-out["slab"] = diff(one, two, s0)
-_slab.REBALANCE_STEPS = 1000
-one, two = pair(sc, s0, p, sc.n_steps)
-out["fixed"] = diff(one, two, s0)
-geo = _slab.geometry(sc, out["n"])
-b = _slab._distribute(sc, geo, s0)[2]
-edge = int(b[1, 0])
-dev = lambda s: np.asarray(_slab.first_plane(sc, s.x)) >= edge
-out["fixed"]["crossed"] = int(np.sum(dev(s0) != dev(two)))
-out["fixed"]["edge"] = [edge, int(sc.grid_shape[0])]
-_slab.REBALANCE_STEPS = 32
-setup = build(load_scene("dambreak-lab", ov + ["numerics.volume_averaging=jbar", "numerics.shape=quadratic_bm"]))
-sc, p, s0 = setup.scene, setup.params, cut(setup)
-one, two = pair(sc, s0, p, sc.n_steps)
-out["jbar"] = diff(one, two, s0)
-setup = build(load_scene("dambreak-lab", ov))
-sc, p, s0 = setup.scene.replace(slab_capacity=0.8), setup.params, cut(setup)  # below the key's range: a direct test
-one, two = pair(sc, s0, p, 40)
-out["starved"] = diff(one, two, s0)
-out["starved"]["capacity"] = _slab.geometry(sc, out["n"]).capacity
-sc = sc.replace(slab_capacity=1.5)
-one, two = pair(sc.replace(devices=3), s0, p, sc.n_steps)
-out["three"] = diff(one, two, s0)
+one = run(sc.replace(devices=1), s0, p)
+out["slab"] = diff(one, run(sc, s0, p), s0)
+starved = sc.replace(slab_capacity=0.8)  # below the key's range: a direct test
+two = run(starved, s0, p, 64)
+out["starved"] = {"lost": [int(one.n_lost), int(two.n_lost)], "active": int(np.asarray(two.active).sum()),
+                  "capacity": _slab.geometry(starved, out["n"]).capacity}
+out["three"] = diff(one, run(sc.replace(devices=3), s0, p), s0)
+jb = build(load_scene("dambreak-lab", ov + ["numerics.volume_averaging=jbar", "numerics.shape=quadratic_bm"]))
+out["jbar"] = diff(run(jb.scene.replace(devices=1), cut(jb), jb.params), run(jb.scene, cut(jb), jb.params), cut(jb))
 from mpmjax._hazard import HazardAdvance, HazardGrid
 out["hazard"] = {}
 for every in (1, 2):
     cfg = load_scene("dambreak-lab", ov + ["output.hazard_maps=true", f"output.hazard_every_steps={every}",
-                                          "time.n_frames=3"])
+                                          "time.n_frames=2"])
     setup = build(cfg)
     maps = {}
     for d in (1, 2):
@@ -98,13 +87,21 @@ for every in (1, 2):
     out["hazard"][str(every)].update(steps=[int(maps[1]["steps"]), int(maps[2]["steps"])],
                                      wet=int((maps[1]["arrival"] >= 0).sum()), top=float(maps[1]["max_speed"].max()))
 _slab.REBALANCE_STEPS = 1000
-grads = {}
+grads, ends = {}, {}
 for d in (1, 2):
     def loss(mu0):
         q = p._replace(material=p.material._replace(mu0=mu0))
-        return jnp.mean(make_chunk(sc.replace(devices=d), sc.n_steps)(s0, q).x[:, 0])
-    grads[d] = [float(a) for a in jax.jit(jax.value_and_grad(loss))(p.material.mu0)]
+        end = make_chunk(sc.replace(devices=d), sc.n_steps)(s0, q)
+        return jnp.mean(end.x[:, 0]), end
+    (v, ends[d]), g = jax.jit(jax.value_and_grad(loss, has_aux=True))(p.material.mu0)
+    grads[d] = [float(v), float(g)]
 out["grad"] = grads
+out["fixed"] = diff(ends[1], ends[2], s0)
+geo = _slab.geometry(sc, out["n"])
+edge = int(jax.jit(lambda s: _slab._distribute(sc, geo, s)[2])(s0)[1, 0])
+dev = lambda s: np.asarray(_slab.first_plane(sc, s.x)) >= edge
+out["fixed"]["crossed"] = int(np.sum(dev(s0) != dev(ends[2])))
+out["fixed"]["edge"] = [edge, int(sc.grid_shape[0])]
 print(json.dumps(out))
 """
 
@@ -120,14 +117,14 @@ def two_device_run():
 
 @pytest.mark.parametrize("case", ["slab", "fixed", "jbar", "three"])
 def test_slabs_give_the_one_device_positions(two_device_run, case):
-    """The lab dam break (399 particles, float64, 119 steps) on 2 slabs ends where it ends on one
+    """The lab dam break (399 particles, float64, 128 steps) on 2 slabs ends where it ends on one
     device, to 1e-12 m in position and 1e-11 in J: rebalanced every 32 steps, with the first slab
     edges kept (particles cross only by migration), with J-bar's second grid sum, and on 3 slabs
     (the column fills a third of the grid: two slab edges inside it).
 
     As for the replicated layout (tests/test_parallel_shard.py), only the order of the additions that
     build the grid differs (the halo planes are summed from two partial grids), a few float64
-    roundings per nodal sum, grown by the steps to the measured 1.7-1.9e-16 m (1.2-1.6e-15 in J).  A halo plane not
+    roundings per nodal sum, grown by the steps to the measured 2.2e-16 m (1.1-2.8e-15 in J).  A halo plane not
     added or not sent back, a particle on the wrong slab (its stencil outside the window the
     device holds) or one lost or duplicated in migration moves particles by at least
     O(dt^2 g) = 1e-5 m per step, 1e7 times more than the tolerance.
@@ -146,7 +143,8 @@ def test_slabs_give_the_one_device_positions(two_device_run, case):
 def test_hazard_maps_on_slabs_equal_one_device(two_device_run, every):
     """Hazard maps (output.hazard_maps) sampled inside the slab advance, each device binning its own
     particles and the bin sums added over devices, equal one device's maps: the lab dam break above,
-    3 frames (119 steps), sampled every step and every second step.  Tolerance as for the positions
+    2 frames of 64 steps (each frame dealt out, and rebalanced at its step 32), sampled every step
+    and every second step.  Tolerance as for the positions
     (1e-12 in m, m/s, m^2/s and s): the bins read positions and velocities equal to rounding, and a
     particle in the wrong bin, a device's particles left out or counted twice would change a bin's
     depth by a particle's rest volume per bin area, about 2e-2 m here."""
@@ -158,10 +156,10 @@ def test_hazard_maps_on_slabs_equal_one_device(two_device_run, every):
 
 
 def test_particles_migrate_between_slabs(two_device_run):
-    """With the slab edges of t = 0 kept for all 119 steps, particles that flow across the edge are
+    """With the slab edges of t = 0 kept for all 128 steps, particles that flow across the edge are
     carried to the other device by migration alone, and the result still equals one device's
     (previous test): the column collapses rightwards over the edge, which splits it in two halves
-    by count, so a good share of the particles crosses (measured: 36 of 399)."""
+    by count, so a good share of the particles crosses (measured: 40 of 399)."""
     c = two_device_run["fixed"]
     assert 0 < c["edge"][0] < c["edge"][1], c
     assert c["crossed"] >= 10, c
@@ -170,7 +168,8 @@ def test_particles_migrate_between_slabs(two_device_run):
 def test_a_device_out_of_slots_counts_the_particles_it_drops(two_device_run):
     """With slots for 2 x 160 = 320 of 399 particles (slab_capacity 0.8), the 79 that do not fit at the
     first dealing are dropped, inactive, and counted in n_lost: the run reports them rather than
-    carrying wrong physics on.  (Later steps lose no more: the survivors fit.)"""
+    carrying wrong physics on.  (The rebalancing at step 32 and the 32 steps after it lose no more:
+    the survivors fit.)"""
     c = two_device_run["starved"]
     assert c["capacity"] == 160, c
     assert c["lost"][0] == 0 and c["lost"][1] == 399 - 2 * 160, c
@@ -179,8 +178,8 @@ def test_a_device_out_of_slots_counts_the_particles_it_drops(two_device_run):
 
 def test_slabs_give_the_one_device_gradient(two_device_run):
     """Reverse mode through the slab advance (halo ppermutes, migration's packing and placing,
-    the dealing and collecting by index): d(mean x)/d mu0 over the 119 steps, with the t = 0 slab
-    edges kept so that the 36 particles that cross them carry their derivatives through migration,
+    the dealing and collecting by index): d(mean x)/d mu0 over the 128 steps, with the t = 0 slab
+    edges kept so that the 40 particles that cross them carry their derivatives through migration,
     equals one device's to 1e-9 relative.  A migration that cut the derivative (as a first version
     did, sending floats bitcast to int32) was 4 % off."""
     g = two_device_run["grad"]
@@ -233,8 +232,9 @@ def test_lost_particles_do_not_take_the_slots_of_active_ones():
     s0 = s0._replace(active=jnp.asarray(np.arange(n) >= n - 320))
     geo = _slab.geometry(sc, n)
     assert geo.capacity == 190 and n == 400, (geo, n)
-    slabs, ids, bounds = _slab._distribute(sc, geo, s0)
-    back = _slab._collect(s0, slabs, ids)
+    # jitted (as inside the slab advance): op by op, each operation compiles on its own, 2x the CPU
+    slabs, ids, bounds = jax.jit(functools.partial(_slab._distribute, sc, geo))(s0)
+    back = jax.jit(_slab._collect)(s0, slabs, ids)
     assert int(np.asarray(back.active).sum()) == 320 and int(back.n_lost) == 0
     assert np.array_equal(np.asarray(back.x), np.asarray(s0.x))
     b = np.asarray(bounds)
