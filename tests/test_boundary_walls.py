@@ -16,7 +16,7 @@ import mpmjax as m
 TH = math.radians(20.0)
 
 
-def _incline(kind, t_end=0.3):
+def _incline(kind, t_end=0.3, pressure="incompressible"):
     # plane y = 0.1 + x tan(th), normal into the fluid (-sin th, cos th); open box faces
     raw = {
         "domain": {"dim": 2, "lo_m": [0.0, 0.0], "hi_m": [1.0, 0.6], "cell_size_m": 0.02},
@@ -29,7 +29,7 @@ def _incline(kind, t_end=0.3):
         },
         # ppc 2 as measured (at the default 3 the block seeds closer to the open x_lo face and a few
         # particles leave through it)
-        "numerics": {"dtype": "float64", "shape": "gimp", "ppc": 2},
+        "numerics": {"dtype": "float64", "shape": "gimp", "ppc": 2, "pressure": pressure},
         "time": {"t_end_s": t_end, "n_frames": 6},
         "material": {"model": "newtonian", "density_kg_m3": 1000.0, "bulk_modulus_pa": 2e4, "viscosity_pa_s": 1.0},
         "gravity": {"g_m_s2": 9.81},
@@ -46,7 +46,14 @@ def _incline(kind, t_end=0.3):
 
 
 def test_slip_incline_is_frictionless():
-    s, final, frames, mass, p_t, times, n_hat = _incline("slip")
+    # The per-particle pressure, where the statement is exact.  With the grid pressure it is not, at a plane that
+    # cuts the cells: the solve scales a node's mass by its kernel fill over its share of the cells whose centre
+    # is in front of the plane (so that hydrostatic pressure is an equilibrium at walls; _pressure, "Near walls"),
+    # and along a cut these differ node by node, so the pressure's impulse gets a tangential part: measured
+    # -0.25 / -0.19 / +1.6 / +1.9 / +1.6 / +1.4 % of the exact tangential momentum per frame (h = 2 cm, the
+    # block 5 cells thick); with that scale set to 1 the statement holds to round-off (checked 2026-12-08).
+    # Along an axis-aligned slip floor the grid pressure is exact: test_slip_floor_keeps_horizontal_momentum.
+    s, final, frames, mass, p_t, times, n_hat = _incline("slip", pressure="explicit")
     assert int(final.n_lost) == 0
     M = mass.sum()
     exact = -M * 9.81 * math.sin(TH) * times  # g . t = -g sin(th)

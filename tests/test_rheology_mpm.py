@@ -271,7 +271,10 @@ def test_bingham_slump_final_profile():
         # quadratic B-spline: measured max profile deviation 6.6 %.  With GIMP the last ~4 cells
         # before the front come out up to 26 % thicker (docs/validation.md), so this test pins
         # the shape function it validates.
-        "numerics": {"ppc": ppc, "shape": "quadratic"},
+        # The per-particle pressure (kappa below), as measured.  With the grid pressure the profile's largest
+        # departure is +12.4 % (2026-12-08), at the last station before the front (elsewhere -7.8 to +8.4 %): the
+        # validate suite's slumps measure the grid pressure against x_inf (docs/incompressible.md).
+        "numerics": {"ppc": ppc, "shape": "quadratic", "pressure": "explicit"},
         "time": {"t_end_s": 6.0, "n_frames": 12},
         "material": {"model": "bingham", "density_kg_m3": SLUMP_RHO, "bulk_modulus_pa": 15000.0,
                      "viscosity_pa_s": mu, "yield_stress_pa": SLUMP_TAU_Y, "papanastasiou_m_s": 1e4},

@@ -269,13 +269,14 @@ _HEAD: dict[str, Key] = {
     ),
     "numerics.pressure": Key(
         str,
-        "explicit",
+        "incompressible",
         "-",
-        "Where the pressure comes from. explicit: each particle's J through the Tait EOS with "
-        "material.bulk_modulus_pa (the thesis's weakly compressible MPM: the time step follows its sound speed, "
-        "and a stiff kappa locks). incompressible: one pressure per grid cell solved every step so that the flow "
-        "keeps its volume (fractional step, conjugate gradients; kappa is not used); the time step then follows the "
-        "flow speed and the Maxwell shear waves (docs/incompressible.md).",
+        "Where the pressure comes from. incompressible (the default since 2026-12-08): one pressure per grid cell "
+        "solved every step so that the flow keeps its volume (fractional step, conjugate gradients; kappa is not "
+        "used); the time step then follows the flow speed and the Maxwell shear waves (docs/incompressible.md). "
+        "explicit: each particle's J through the Tait EOS with material.bulk_modulus_pa (the thesis's weakly "
+        "compressible MPM: the time step follows its sound speed, and a stiff kappa locks); the built-in scenes "
+        "whose deposits are a few cells deep keep it (docs/incompressible-default.md).",
         choices=("explicit", "incompressible"),
     ),
     "numerics.void_closure": Key(
