@@ -457,12 +457,13 @@ def _check_pressure(out: dict):
         if out[key] != off:
             raise SceneError(
                 f"{key} = {_show(out[key])} is invalid with numerics.pressure = 'incompressible' (the grid pressure "
-                f"keeps the volume itself); allowed: {off!r}"
+                f"keeps the volume itself; the default since 2026-12-08); allowed: {off!r}, or set "
+                "numerics.pressure = 'explicit' for the per-particle pressure it belongs to"
             )
     if out["numerics.devices"] > 1 and out["numerics.decomposition"] == "slab":
         raise SceneError(
             "numerics.decomposition = 'slab' is invalid with numerics.pressure = 'incompressible' (the pressure is "
-            "solved on the whole grid); allowed: 'replicated'"
+            "solved on the whole grid); allowed: 'replicated', or set numerics.pressure = 'explicit'"
         )
 
 
