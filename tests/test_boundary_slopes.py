@@ -23,7 +23,8 @@ def _layer(material: dict, slope_deg: float, t_end: float, kappa: float = 2e4, n
     raw = {
         "domain": {"lo_m": [0.0, 0.0], "hi_m": [0.1, 0.15], "cell_size_m": 0.01},
         "boundary": {"x_lo": "periodic", "x_hi": "periodic", "y_lo": "noslip", "y_hi": "slip"},
-        "numerics": {"ppc": 2, "dtype": "float64", **(numerics or {})},
+        # the per-particle pressure unless the test says otherwise: the films' measured figures are its
+        "numerics": {"ppc": 2, "dtype": "float64", "pressure": "explicit", **(numerics or {})},
         "time": {"t_end_s": t_end, "n_frames": 4},
         "material": {"density_kg_m3": RHO, "bulk_modulus_pa": kappa, **material},
         "gravity": {"g_m_s2": G, "slope_deg": slope_deg},

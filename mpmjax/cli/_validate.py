@@ -108,7 +108,7 @@ def add_validate_arguments(p) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="numerics override for every case, e.g. numerics.pressure=incompressible (repeatable)",
+        help="numerics override for every case, e.g. numerics.pressure=explicit (repeatable)",
     )
     p.add_argument("--out", default="validate", help="output folder: OUT/validate.json and OUT/validate.png")
     p.add_argument(

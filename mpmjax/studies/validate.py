@@ -4,7 +4,7 @@ Every case has a reference (exact, or the run's own stiffer or denser twin where
 independence), a tolerance with its reason, and gives its measured value, signed relative error,
 loop CPU and wall time and pass/fail.  Its purpose is to choose numerical defaults across the
 whole suite by error per CPU second, and to compare the pressure modes: ``--set KEY=VALUE``
-(``numerics.*`` keys) applies to every case, e.g. ``--set numerics.pressure=incompressible``; a case whose
+(``numerics.*`` keys) applies to every case, e.g. ``--set numerics.pressure=explicit``; a case whose
 formulation refuses the key (the full model's volume options in a depth-averaged case, ``numerics.depth_layers``
 in a full-model one) is recorded as ``rejected``, not run and claiming nothing (docs/validate-depth-averaged.md).
 
